@@ -1,0 +1,178 @@
+//! The time-stepping driver: particles, materials, transfer scheme, reference
+//! configuration and the stepper, advanced to requested times.
+
+use crate::reference::{Eulerian, ReferenceConfig};
+use mpm_constitutive::{ConstitutiveModel, ElasticModel};
+use mpm_grid::{Collider, GridLayout};
+use mpm_kernels::Kernel;
+use mpm_math::{Real, Vector};
+use mpm_transfer::{
+    cfl_time_step, max_speed, particle_totals, ExplicitStepper, Particles, PhaseTimes, StepError,
+    StepParams, Totals, Transfer,
+};
+
+/// How the step size is chosen.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum TimeStepPolicy {
+    /// `Δt = cfl·h/(max speed + wave speed)`, recomputed every step.
+    Cfl(f64),
+    /// A fixed step.
+    Fixed(f64),
+}
+
+/// A step failed.
+#[derive(Debug, thiserror::Error)]
+#[error("step {step} (t = {time:.6} s): {source}")]
+pub struct SimulationError {
+    /// Index of the failing step (1-based count of steps attempted).
+    pub step: u64,
+    /// Time at the start of that step.
+    pub time: f64,
+    /// What went wrong.
+    #[source]
+    pub source: StepError,
+}
+
+/// A running simulation with kernel `K` on layout `L`.
+pub struct Simulation<T: Real, const D: usize, K: Kernel, L: GridLayout> {
+    /// Particle state.
+    pub particles: Particles<T, D>,
+    /// Material table (indexed by `Particles::material`).
+    pub materials: Vec<ElasticModel<T>>,
+    /// Density of each material (for the wave speed).
+    pub densities: Vec<T>,
+    /// Transfer scheme.
+    pub transfer: Transfer<T>,
+    /// Step inputs other than `dt` and `time`.
+    pub params: StepParams<T, D>,
+    /// Step-size rule.
+    pub time_step: TimeStepPolicy,
+    /// Current time.
+    pub time: f64,
+    /// Steps taken.
+    pub steps: u64,
+    /// Reference configuration.
+    pub reference: Eulerian,
+    /// Reference updates counted so far (0 for Eulerian).
+    pub reference_updates: u64,
+    /// The stepper (grid and work buffers).
+    pub stepper: ExplicitStepper<T, D, K, L>,
+    wave_speed: T,
+}
+
+impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Simulation<T, D, K, L> {
+    /// A simulation at time 0. `colliders` should include the domain walls.
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        particles: Particles<T, D>,
+        materials: Vec<ElasticModel<T>>,
+        densities: Vec<T>,
+        transfer: Transfer<T>,
+        h: T,
+        gravity: Vector<T, D>,
+        colliders: Vec<Collider<T, D>>,
+        domain: (Vector<T, D>, Vector<T, D>),
+        time_step: TimeStepPolicy,
+    ) -> Self {
+        let wave_speed = materials
+            .iter()
+            .zip(&densities)
+            .map(|(m, rho)| ConstitutiveModel::<T, D>::wave_speed(m, *rho))
+            .fold(T::zero(), |a, b| if b > a { b } else { a });
+        Simulation {
+            particles,
+            materials,
+            densities,
+            transfer,
+            params: StepParams {
+                dt: T::zero(),
+                h,
+                time: T::zero(),
+                gravity,
+                colliders,
+                domain_min: domain.0,
+                domain_max: domain.1,
+            },
+            time_step,
+            time: 0.0,
+            steps: 0,
+            reference: Eulerian,
+            reference_updates: 0,
+            stepper: ExplicitStepper::new(),
+            wave_speed,
+        }
+    }
+
+    /// Largest elastic wave speed over the materials.
+    pub fn wave_speed(&self) -> T {
+        self.wave_speed
+    }
+
+    /// The step size the policy gives now.
+    pub fn next_dt(&self) -> f64 {
+        match self.time_step {
+            TimeStepPolicy::Fixed(dt) => dt,
+            TimeStepPolicy::Cfl(cfl) => cfl_time_step(
+                self.params.h,
+                T::lit(cfl),
+                max_speed(&self.particles),
+                self.wave_speed,
+            )
+            .to_f64(),
+        }
+    }
+
+    /// One step of at most `max_dt`; returns the step taken.
+    pub fn step(&mut self, max_dt: f64) -> Result<f64, SimulationError> {
+        let dt = self.next_dt().min(max_dt);
+        self.params.dt = T::lit(dt);
+        self.params.time = T::lit(self.time);
+        let result = self.stepper.step(
+            &mut self.particles,
+            &self.materials,
+            &self.transfer,
+            &self.params,
+        );
+        self.steps += 1;
+        if let Err(source) = result {
+            return Err(SimulationError {
+                step: self.steps,
+                time: self.time,
+                source,
+            });
+        }
+        self.time += dt;
+        if self.reference.counts_updates() && self.reference.should_rebuild(&[]) {
+            self.reference_updates += 1;
+        }
+        Ok(dt)
+    }
+
+    /// Steps until `time` reaches `t_end` (the last step is shortened to land on it).
+    /// `on_step` is called after every step (progress reporting).
+    pub fn advance_to(
+        &mut self,
+        t_end: f64,
+        mut on_step: impl FnMut(&Self),
+    ) -> Result<(), SimulationError> {
+        // Stop within a relative 1e-12 of the target so round-off never adds a
+        // microscopic extra step.
+        let eps = 1e-12 * t_end.abs().max(1.0);
+        while self.time < t_end - eps {
+            self.step(t_end - self.time)?;
+            on_step(self);
+        }
+        self.time = self.time.max(t_end);
+        Ok(())
+    }
+
+    /// Particle totals (mass, momentum, angular momentum with the APIC term, energies).
+    pub fn totals(&self) -> Totals {
+        particle_totals::<T, D, K, L>(&self.particles, &self.materials, self.params.h)
+    }
+
+    /// Accumulated time per phase.
+    pub fn phase_times(&self) -> PhaseTimes {
+        self.stepper.times
+    }
+}

@@ -1,0 +1,406 @@
+//! Output files: atomic writes, binary PLY frames and stats.csv rows.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use mpm_math::Real;
+
+/// Writes `bytes` to `path` + ".tmp" in the same directory, syncs it and renames it
+/// over `path`, so an interrupted run never leaves a half-written file under `path`.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    let tmp = tmp_path(path);
+    let result = (|| {
+        let mut f = std::fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+        drop(f);
+        std::fs::rename(&tmp, path)
+    })();
+    if result.is_err() {
+        // Best effort: do not leave a stray temporary behind.
+        let _ = std::fs::remove_file(&tmp);
+    }
+    result
+}
+
+fn tmp_path(path: &Path) -> PathBuf {
+    let mut name = path.as_os_str().to_owned();
+    name.push(".tmp");
+    PathBuf::from(name)
+}
+
+/// A binary little-endian PLY point cloud: `x y z vx vy vz` as `float` (f32) or
+/// `double` (f64), then `ushort material`.
+///
+/// Written by hand rather than with a PLY crate: those build a property map per
+/// vertex, which is slow and memory-hungry for millions of particles every frame;
+/// here it is one header and a flat byte buffer.
+///
+/// Panics if the three slices differ in length (a caller bug, not user input).
+pub fn ply_bytes<T: Real>(
+    positions: &[[T; 3]],
+    velocities: &[[T; 3]],
+    material: &[u16],
+) -> Vec<u8> {
+    let n = positions.len();
+    assert_eq!(velocities.len(), n, "one velocity per position");
+    assert_eq!(material.len(), n, "one material id per position");
+    let single = T::NAME == "f32";
+    let ty = if single { "float" } else { "double" };
+    let mut header = format!(
+        "ply\nformat binary_little_endian 1.0\ncomment mpm precision {}\nelement vertex {n}\n",
+        T::NAME
+    );
+    for p in ["x", "y", "z", "vx", "vy", "vz"] {
+        header.push_str(&format!("property {ty} {p}\n"));
+    }
+    header.push_str("property ushort material\nend_header\n");
+
+    let scalar = if single { 4 } else { 8 };
+    let mut out = Vec::with_capacity(header.len() + n * (6 * scalar + 2));
+    out.extend_from_slice(header.as_bytes());
+    for i in 0..n {
+        for x in positions[i].iter().chain(velocities[i].iter()) {
+            // to_f64 is exact, and narrowing an f32's widened value back is exact too.
+            let x = x.to_f64();
+            if single {
+                out.extend_from_slice(&(x as f32).to_le_bytes());
+            } else {
+                out.extend_from_slice(&x.to_le_bytes());
+            }
+        }
+        out.extend_from_slice(&material[i].to_le_bytes());
+    }
+    out
+}
+
+/// Reads the positions back from a binary little-endian PLY with `x`, `y`, `z`
+/// properties of type float or double (other scalar properties are skipped).
+pub fn read_ply_positions(bytes: &[u8]) -> Result<Vec<[f64; 3]>, String> {
+    const END: &[u8] = b"end_header\n";
+    let end = bytes
+        .windows(END.len())
+        .position(|w| w == END)
+        .ok_or("no end_header line")?
+        + END.len();
+    let header =
+        std::str::from_utf8(&bytes[..end]).map_err(|e| format!("header is not UTF-8: {e}"))?;
+    let mut lines = header.lines();
+    if lines.next() != Some("ply") {
+        return Err("not a PLY file (first line is not `ply`)".into());
+    }
+    let mut count: Option<usize> = None;
+    let mut in_vertex = false;
+    // (size in bytes, type, name) of each vertex property, in order.
+    let mut props: Vec<(usize, &str, &str)> = Vec::new();
+    for line in lines {
+        let words: Vec<&str> = line.split_whitespace().collect();
+        match words.as_slice() {
+            ["format", fmt, _] if *fmt != "binary_little_endian" => {
+                return Err(format!("unsupported format `{fmt}`"));
+            }
+            ["element", "vertex", n] => {
+                count = Some(n.parse().map_err(|e| format!("bad vertex count: {e}"))?);
+                in_vertex = true;
+            }
+            ["element", ..] => {
+                if count.is_some() {
+                    // Only the vertex element is read; it must come first.
+                    in_vertex = false;
+                } else {
+                    return Err("elements before `vertex` are not supported".into());
+                }
+            }
+            ["property", "list", ..] if in_vertex => {
+                return Err("list properties on vertices are not supported".into());
+            }
+            ["property", ty, name] if in_vertex => {
+                let size = match *ty {
+                    "char" | "uchar" | "int8" | "uint8" => 1,
+                    "short" | "ushort" | "int16" | "uint16" => 2,
+                    "int" | "uint" | "float" | "int32" | "uint32" | "float32" => 4,
+                    "double" | "float64" => 8,
+                    other => return Err(format!("unknown property type `{other}`")),
+                };
+                props.push((size, ty, name));
+            }
+            _ => {}
+        }
+    }
+    let n = count.ok_or("no `element vertex` line")?;
+    let stride: usize = props.iter().map(|p| p.0).sum();
+    let mut offsets = [None; 3];
+    let mut off = 0;
+    for (size, ty, name) in &props {
+        let axis = match *name {
+            "x" => Some(0),
+            "y" => Some(1),
+            "z" => Some(2),
+            _ => None,
+        };
+        if let Some(a) = axis {
+            let double = match *ty {
+                "double" | "float64" => true,
+                "float" | "float32" => false,
+                other => return Err(format!("coordinate `{name}` has type `{other}`")),
+            };
+            offsets[a] = Some((off, double));
+        }
+        off += size;
+    }
+    let body = &bytes[end..];
+    if body.len() < n * stride {
+        return Err(format!(
+            "truncated: {n} vertices need {} bytes, found {}",
+            n * stride,
+            body.len()
+        ));
+    }
+    let mut out = Vec::with_capacity(n);
+    for v in 0..n {
+        let rec = &body[v * stride..(v + 1) * stride];
+        let mut p = [0.0; 3];
+        for (a, slot) in offsets.iter().enumerate() {
+            let (o, double) = slot.ok_or("missing x, y or z property")?;
+            p[a] = if double {
+                f64::from_le_bytes(rec[o..o + 8].try_into().expect("8 bytes"))
+            } else {
+                f32::from_le_bytes(rec[o..o + 4].try_into().expect("4 bytes")) as f64
+            };
+        }
+        out.push(p);
+    }
+    Ok(out)
+}
+
+/// One stats.csv row's standard columns (SI units, totals over all particles).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct StatsRow {
+    pub frame: usize,
+    pub time: f64,
+    pub steps: u64,
+    pub wall_seconds: f64,
+    pub particles: usize,
+    pub mass: f64,
+    pub kinetic_energy: f64,
+    pub elastic_energy: f64,
+    pub momentum: [f64; 3],
+    pub angular_momentum: [f64; 3],
+    pub max_speed: f64,
+    pub reference_updates: u64,
+}
+
+/// Builds stats.csv: the header, then one row per frame. The whole text is kept so the
+/// driver can rewrite the file atomically each frame (it is then always complete).
+#[derive(Clone, Debug)]
+pub struct StatsWriter {
+    probes: Vec<String>,
+    text: String,
+}
+
+/// The standard columns, in order.
+pub const STATS_HEADER: &str = "frame,time,steps,wall_seconds,particles,mass,kinetic_energy,\
+elastic_energy,momentum_x,momentum_y,momentum_z,angular_momentum_x,angular_momentum_y,\
+angular_momentum_z,max_speed,reference_updates";
+
+impl StatsWriter {
+    /// `probe_names` become extra columns after the standard ones.
+    pub fn new(probe_names: Vec<String>) -> Self {
+        let mut w = StatsWriter {
+            probes: probe_names,
+            text: String::new(),
+        };
+        w.text = w.header();
+        w.text.push('\n');
+        w
+    }
+
+    /// The header line (no newline).
+    pub fn header(&self) -> String {
+        let mut h = STATS_HEADER.to_string();
+        for p in &self.probes {
+            h.push(',');
+            h.push_str(p);
+        }
+        h
+    }
+
+    /// One row (no newline). Floats use `{:e}`: the shortest digits that round-trip.
+    ///
+    /// Panics if `probe_values` does not have one value per probe (a caller bug).
+    pub fn row(&self, r: &StatsRow, probe_values: &[f64]) -> String {
+        assert_eq!(probe_values.len(), self.probes.len(), "one value per probe");
+        let mut s = format!(
+            "{},{:e},{},{:e},{},{:e},{:e},{:e}",
+            r.frame,
+            r.time,
+            r.steps,
+            r.wall_seconds,
+            r.particles,
+            r.mass,
+            r.kinetic_energy,
+            r.elastic_energy
+        );
+        for x in r
+            .momentum
+            .iter()
+            .chain(r.angular_momentum.iter())
+            .chain([r.max_speed].iter())
+        {
+            s.push_str(&format!(",{x:e}"));
+        }
+        s.push_str(&format!(",{}", r.reference_updates));
+        for x in probe_values {
+            s.push_str(&format!(",{x:e}"));
+        }
+        s
+    }
+
+    /// Appends a row to the kept text.
+    pub fn push(&mut self, r: &StatsRow, probe_values: &[f64]) {
+        let line = self.row(r, probe_values);
+        self.text.push_str(&line);
+        self.text.push('\n');
+    }
+
+    /// The whole file so far: header and every pushed row, newline-terminated.
+    pub fn contents(&self) -> &str {
+        &self.text
+    }
+
+    /// Rewrites `path` atomically with [`StatsWriter::contents`].
+    pub fn write(&self, path: &Path) -> std::io::Result<()> {
+        write_atomic(path, self.text.as_bytes())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn tmp_dir(tag: &str) -> PathBuf {
+        let d = std::env::temp_dir().join(format!("mpm-cli-output-{tag}-{}", std::process::id()));
+        std::fs::create_dir_all(&d).unwrap();
+        d
+    }
+
+    fn cloud<T: Real>(n: usize) -> (Vec<[T; 3]>, Vec<[T; 3]>, Vec<u16>) {
+        let p = (0..n)
+            .map(|i| {
+                let x = i as f64;
+                [T::lit(0.1 * x), T::lit(-1.0 / (x + 3.0)), T::lit(1e-7 * x)]
+            })
+            .collect();
+        let v = (0..n).map(|i| [T::lit(i as f64); 3]).collect();
+        let m = (0..n).map(|i| (i % 3) as u16).collect();
+        (p, v, m)
+    }
+
+    fn round_trip<T: Real>(ty: &str) {
+        let (p, v, m) = cloud::<T>(101);
+        let bytes = ply_bytes(&p, &v, &m);
+        let header_len = bytes
+            .windows(11)
+            .position(|w| w == b"end_header\n")
+            .unwrap()
+            + 11;
+        let text = String::from_utf8_lossy(&bytes[..header_len]);
+        assert!(text.starts_with("ply\nformat binary_little_endian 1.0\n"));
+        assert!(text.contains(&format!("comment mpm precision {}\n", T::NAME)));
+        assert!(text.contains("element vertex 101\n"));
+        assert!(text.contains(&format!("property {ty} x\n")));
+        assert!(text.contains(&format!("property {ty} vz\n")));
+        assert!(text.contains("property ushort material\nend_header\n"));
+        let back = read_ply_positions(&bytes).unwrap();
+        assert_eq!(back.len(), p.len());
+        for (a, b) in back.iter().zip(&p) {
+            assert_eq!(*a, [b[0].to_f64(), b[1].to_f64(), b[2].to_f64()]);
+        }
+        // Size: header + n * (6 scalars + ushort).
+        let scalar = if ty == "float" { 4 } else { 8 };
+        assert_eq!(bytes.len(), header_len + 101 * (6 * scalar + 2));
+        // The material id of the last vertex sits in the last two bytes.
+        assert_eq!(&bytes[bytes.len() - 2..], &(100u16 % 3).to_le_bytes());
+    }
+
+    #[test]
+    fn ply_round_trip_f32() {
+        round_trip::<f32>("float");
+    }
+
+    #[test]
+    fn ply_round_trip_f64() {
+        round_trip::<f64>("double");
+    }
+
+    #[test]
+    fn ply_empty_cloud_and_bad_input() {
+        let bytes = ply_bytes::<f64>(&[], &[], &[]);
+        assert!(read_ply_positions(&bytes).unwrap().is_empty());
+        assert!(read_ply_positions(b"not a ply").is_err());
+        let (p, v, m) = cloud::<f64>(5);
+        let bytes = ply_bytes(&p, &v, &m);
+        assert!(read_ply_positions(&bytes[..bytes.len() - 1]).is_err());
+    }
+
+    #[test]
+    fn write_atomic_replaces_and_leaves_no_tmp() {
+        let d = tmp_dir("atomic");
+        let path = d.join("frame_00000.ply");
+        write_atomic(&path, b"first").unwrap();
+        write_atomic(&path, b"second").unwrap();
+        assert_eq!(std::fs::read(&path).unwrap(), b"second");
+        assert!(!d.join("frame_00000.ply.tmp").exists());
+        let names: Vec<_> = std::fs::read_dir(&d)
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
+        assert_eq!(names.len(), 1, "{names:?}");
+        std::fs::remove_dir_all(&d).unwrap();
+    }
+
+    #[test]
+    fn stats_header_and_rows() {
+        let w = StatsWriter::new(vec![]);
+        assert_eq!(
+            w.header(),
+            "frame,time,steps,wall_seconds,particles,mass,kinetic_energy,elastic_energy,\
+momentum_x,momentum_y,momentum_z,angular_momentum_x,angular_momentum_y,angular_momentum_z,\
+max_speed,reference_updates"
+        );
+        let mut w = StatsWriter::new(vec!["tip_y".into(), "left".into()]);
+        assert!(w.header().ends_with(",reference_updates,tip_y,left"));
+        let r = StatsRow {
+            frame: 3,
+            time: 0.06,
+            steps: 120,
+            wall_seconds: 1.5,
+            particles: 1000,
+            mass: 0.1 + 0.2,
+            kinetic_energy: 1.0 / 3.0,
+            elastic_energy: 0.0,
+            momentum: [1e-300, -2.5, 0.0],
+            angular_momentum: [0.0, 0.0, 7.0],
+            max_speed: 12.25,
+            reference_updates: 0,
+        };
+        let row = w.row(&r, &[0.25, -1.0]);
+        let fields: Vec<&str> = row.split(',').collect();
+        assert_eq!(fields.len(), 16 + 2);
+        assert_eq!(fields.len(), w.header().split(',').count());
+        // Floats round-trip exactly.
+        assert_eq!(fields[0], "3");
+        assert_eq!(fields[5].parse::<f64>().unwrap(), 0.1 + 0.2);
+        assert_eq!(fields[6].parse::<f64>().unwrap(), 1.0 / 3.0);
+        assert_eq!(fields[8].parse::<f64>().unwrap(), 1e-300);
+        assert_eq!(fields[15], "0");
+        w.push(&r, &[0.25, -1.0]);
+        w.push(&r, &[0.5, -1.0]);
+        assert_eq!(w.contents().lines().count(), 3);
+        let d = tmp_dir("stats");
+        let path = d.join("stats.csv");
+        w.write(&path).unwrap();
+        assert_eq!(std::fs::read_to_string(&path).unwrap(), w.contents());
+        std::fs::remove_dir_all(&d).unwrap();
+    }
+}

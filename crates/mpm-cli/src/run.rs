@@ -1,0 +1,519 @@
+//! `mpm run`: builds the typed simulation a scene asks for (dimension × precision ×
+//! kernel × layout, dispatched once here) and writes frames, stats.csv and
+//! summary.json.
+
+use crate::output::{ply_bytes, write_atomic, StatsRow, StatsWriter};
+use crate::sampling::{particle_volume, sample_body};
+use crate::scene::{
+    Boundary, ColliderSpec, GridKind, Kernel as KernelKind, ModelKind, Precision, Reduction, Scene,
+    TimeStep, TransferKind,
+};
+use mpm_aul::{Simulation, TimeStepPolicy};
+use mpm_constitutive::{ElasticModel, FixedCorotated, Lame, NeoHookean};
+use mpm_grid::{domain_walls, Collider, ColliderShape, ContactKind, Dual, GridLayout, Single};
+use mpm_kernels::{Compact, CubicBSpline, Kernel, Linear, QuadraticBSpline};
+use mpm_math::{Real, Vector};
+use mpm_transfer::{Apic, Flip, Mls, Particles, Pic, Transfer, TransferScheme};
+use serde_json::json;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Options of `mpm run` besides the scene.
+#[derive(Clone, Debug)]
+pub struct RunOptions {
+    /// Output directory.
+    pub out: PathBuf,
+    /// Stop after this many output frames (frame 0 not counted).
+    pub max_frames: Option<usize>,
+    /// Show a progress bar (only drawn on a terminal).
+    pub progress: bool,
+    /// Where the scene came from (for messages and summary.json).
+    pub origin: String,
+    /// Threads in use (reported).
+    pub threads: usize,
+}
+
+/// What a finished run reports.
+#[derive(Clone, Debug)]
+pub struct RunReport {
+    /// Output frames written (frame 0 included).
+    pub frames: usize,
+    /// Steps taken.
+    pub steps: u64,
+    /// Particles simulated.
+    pub particles: usize,
+    /// Wall seconds of the whole run.
+    pub wall_seconds: f64,
+}
+
+/// A run that could not start or did not finish.
+#[derive(Debug, thiserror::Error)]
+pub enum RunError {
+    /// Output could not be written.
+    #[error("cannot write {path}: {source}. Check that the directory is writable and the disk is not full.")]
+    Io {
+        /// Path concerned.
+        path: String,
+        /// Cause.
+        source: std::io::Error,
+    },
+    /// The simulation stopped.
+    #[error("{origin}: the simulation stopped at {detail}. Frames 0..={last_frame} in {out} are complete. Try a smaller `simulation.cfl` or `simulation.dt`, or check the material parameters.")]
+    Simulation {
+        /// Scene origin.
+        origin: String,
+        /// The step error.
+        detail: String,
+        /// Last complete frame.
+        last_frame: usize,
+        /// Output directory.
+        out: String,
+    },
+    /// A scene value the simulation cannot use.
+    #[error("{origin}: {key}: {message}")]
+    Scene {
+        /// Scene origin.
+        origin: String,
+        /// Dotted key.
+        key: String,
+        /// What is wrong and how to fix it.
+        message: String,
+    },
+}
+
+fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> RunError + '_ {
+    move |source| RunError::Io {
+        path: path.display().to_string(),
+        source,
+    }
+}
+
+/// Runs a validated scene.
+pub fn run_scene(scene: &Scene, opts: &RunOptions) -> Result<RunReport, RunError> {
+    let s = &scene.simulation;
+    match (s.dim, s.precision) {
+        (2, Precision::F32) => run_dim::<f32, 2>(scene, opts),
+        (2, Precision::F64) => run_dim::<f64, 2>(scene, opts),
+        (3, Precision::F32) => run_dim::<f32, 3>(scene, opts),
+        _ => run_dim::<f64, 3>(scene, opts),
+    }
+}
+
+fn run_dim<T: Real, const D: usize>(
+    scene: &Scene,
+    opts: &RunOptions,
+) -> Result<RunReport, RunError> {
+    let s = &scene.simulation;
+    match (s.kernel, s.grid) {
+        (KernelKind::Linear, GridKind::Single) => run_typed::<T, D, Linear, Single>(scene, opts),
+        (KernelKind::Linear, GridKind::Dual) => run_typed::<T, D, Linear, Dual>(scene, opts),
+        (KernelKind::Quadratic, GridKind::Single) => {
+            run_typed::<T, D, QuadraticBSpline, Single>(scene, opts)
+        }
+        (KernelKind::Quadratic, GridKind::Dual) => {
+            run_typed::<T, D, QuadraticBSpline, Dual>(scene, opts)
+        }
+        (KernelKind::Cubic, GridKind::Single) => {
+            run_typed::<T, D, CubicBSpline, Single>(scene, opts)
+        }
+        (KernelKind::Cubic, GridKind::Dual) => run_typed::<T, D, CubicBSpline, Dual>(scene, opts),
+        (KernelKind::Compact, GridKind::Single) => run_typed::<T, D, Compact, Single>(scene, opts),
+        (KernelKind::Compact, GridKind::Dual) => run_typed::<T, D, Compact, Dual>(scene, opts),
+    }
+}
+
+fn vector<T: Real, const D: usize>(v: &[f64]) -> Vector<T, D> {
+    Vector::<T, D>::from_fn(|a, _| T::lit(v.get(a).copied().unwrap_or(0.0)))
+}
+
+fn contact(b: Boundary) -> ContactKind {
+    match b {
+        Boundary::Sticky => ContactKind::Sticky,
+        Boundary::Slip => ContactKind::Slip,
+        Boundary::Separate => ContactKind::Separate,
+    }
+}
+
+/// The material table of a scene (validated: only supported elastic models reach here).
+pub fn build_materials<T: Real>(
+    scene: &Scene,
+    origin: &str,
+) -> Result<Vec<ElasticModel<T>>, RunError> {
+    scene
+        .material
+        .iter()
+        .enumerate()
+        .map(|(i, m)| {
+            let bad = |message: String| RunError::Scene {
+                origin: origin.to_string(),
+                key: format!("material.{i}"),
+                message,
+            };
+            let (e, nu) = match (m.youngs_modulus, m.poisson_ratio) {
+                (Some(e), Some(nu)) => (e, nu),
+                _ => return Err(bad("youngs_modulus and poisson_ratio are required".into())),
+            };
+            let lame = Lame::<T>::from_young_poisson(e, nu).map_err(|err| bad(err.to_string()))?;
+            match m.model {
+                ModelKind::FixedCorotated => {
+                    Ok(ElasticModel::FixedCorotated(FixedCorotated::new(lame)))
+                }
+                ModelKind::NeoHookean => Ok(ElasticModel::NeoHookean(NeoHookean::new(lame))),
+                other => Err(bad(format!("model {other:?} is not supported yet"))),
+            }
+        })
+        .collect()
+}
+
+/// Particles of every body, plus each particle's body index (by id).
+pub fn build_particles<T: Real, const D: usize>(
+    scene: &Scene,
+    stores_affine: bool,
+) -> (Particles<T, D>, Vec<u16>) {
+    let s = &scene.simulation;
+    let mut particles = Particles::<T, D>::new(stores_affine);
+    let mut body_of = Vec::new();
+    for (b, body) in scene.body.iter().enumerate() {
+        let mat = scene.material_index(&body.material).unwrap_or(0);
+        let density = scene.material[mat].density;
+        let pts = sample_body(&body.shape, D, s.h, body.particles_per_cell);
+        let vol = particle_volume(D, s.h, body.particles_per_cell);
+        let n = pts.len().max(1) as f64;
+        let mut centroid = [0.0; 3];
+        for p in &pts {
+            for a in 0..3 {
+                centroid[a] += p[a] / n;
+            }
+        }
+        for p in &pts {
+            let r = [p[0] - centroid[0], p[1] - centroid[1], p[2] - centroid[2]];
+            let w = &body.angular_velocity;
+            // v = v₀ + ω × r (2-D: ω is the z component).
+            let spin = if D == 2 {
+                let wz = w.first().copied().unwrap_or(0.0);
+                [-wz * r[1], wz * r[0], 0.0]
+            } else {
+                [
+                    w[1] * r[2] - w[2] * r[1],
+                    w[2] * r[0] - w[0] * r[2],
+                    w[0] * r[1] - w[1] * r[0],
+                ]
+            };
+            let v: Vec<f64> = (0..D).map(|a| body.velocity[a] + spin[a]).collect();
+            particles.push(
+                vector::<T, D>(&p[..D]),
+                vector::<T, D>(&v),
+                T::lit(density * vol),
+                T::lit(vol),
+                mat as u16,
+            );
+            body_of.push(b as u16);
+        }
+    }
+    (particles, body_of)
+}
+
+/// Domain walls (one cell inside the domain) and the scene's colliders.
+pub fn build_colliders<T: Real, const D: usize>(scene: &Scene) -> Vec<Collider<T, D>> {
+    let s = &scene.simulation;
+    let mut c = domain_walls(
+        &vector::<T, D>(&s.domain_min),
+        &vector::<T, D>(&s.domain_max),
+        T::lit(s.h),
+        T::one(),
+        contact(s.boundary),
+    );
+    for spec in &scene.collider {
+        c.push(match spec {
+            ColliderSpec::Plane {
+                point,
+                normal,
+                kind,
+                friction,
+                velocity,
+            } => {
+                let n = vector::<T, D>(normal);
+                Collider {
+                    shape: ColliderShape::Plane {
+                        point: vector(point),
+                        normal: n / n.norm(),
+                    },
+                    kind: contact(*kind),
+                    friction: T::lit(*friction),
+                    velocity: vector(velocity),
+                }
+            }
+            ColliderSpec::Sphere {
+                center,
+                radius,
+                kind,
+                friction,
+                velocity,
+            } => Collider {
+                shape: ColliderShape::Sphere {
+                    center: vector(center),
+                    radius: T::lit(*radius),
+                },
+                kind: contact(*kind),
+                friction: T::lit(*friction),
+                velocity: vector(velocity),
+            },
+        });
+    }
+    c
+}
+
+/// The transfer scheme a scene names.
+pub fn build_transfer<T: Real>(scene: &Scene) -> Transfer<T> {
+    match scene.simulation.transfer {
+        TransferKind::Pic => Transfer::Pic(Pic),
+        TransferKind::Apic => Transfer::Apic(Apic),
+        TransferKind::Mls => Transfer::Mls(Mls),
+        TransferKind::Flip => Transfer::Flip(Flip {
+            blend: T::lit(scene.simulation.flip_blend),
+        }),
+    }
+}
+
+/// A simulation built from a scene, with each particle's body index (by id).
+pub type BuiltScene<T, const D: usize, K, L> = (Simulation<T, D, K, L>, Vec<u16>);
+
+/// Builds the simulation a scene describes (also used by tests and benches).
+pub fn build_simulation<T: Real, const D: usize, K: Kernel, L: GridLayout>(
+    scene: &Scene,
+    origin: &str,
+) -> Result<BuiltScene<T, D, K, L>, RunError> {
+    let s = &scene.simulation;
+    let transfer = build_transfer::<T>(scene);
+    let materials = build_materials::<T>(scene, origin)?;
+    let densities = scene.material.iter().map(|m| T::lit(m.density)).collect();
+    let (particles, body_of) =
+        build_particles::<T, D>(scene, TransferScheme::<T, D>::stores_affine(&transfer));
+    let policy = match s.dt {
+        TimeStep::Auto => TimeStepPolicy::Cfl(s.cfl),
+        TimeStep::Fixed(dt) => TimeStepPolicy::Fixed(dt),
+    };
+    let sim = Simulation::new(
+        particles,
+        materials,
+        densities,
+        transfer,
+        T::lit(s.h),
+        vector(&s.gravity),
+        build_colliders(scene),
+        (vector(&s.domain_min), vector(&s.domain_max)),
+        policy,
+    );
+    Ok((sim, body_of))
+}
+
+fn probe_values<T: Real, const D: usize>(
+    scene: &Scene,
+    particles: &Particles<T, D>,
+    body_of: &[u16],
+) -> Vec<f64> {
+    scene
+        .probe
+        .iter()
+        .map(|probe| {
+            let axis = probe.quantity.axis();
+            let mut acc = match probe.quantity.reduction() {
+                Reduction::Min => f64::INFINITY,
+                Reduction::Max => f64::NEG_INFINITY,
+                Reduction::Mean => 0.0,
+            };
+            let mut count = 0usize;
+            for i in 0..particles.len() {
+                if body_of[particles.id[i] as usize] as usize != probe.body || axis >= D {
+                    continue;
+                }
+                let c = particles.x[i][axis].to_f64();
+                count += 1;
+                acc = match probe.quantity.reduction() {
+                    Reduction::Min => acc.min(c),
+                    Reduction::Max => acc.max(c),
+                    Reduction::Mean => acc + c,
+                };
+            }
+            match probe.quantity.reduction() {
+                Reduction::Mean if count > 0 => acc / count as f64,
+                _ => acc,
+            }
+        })
+        .collect()
+}
+
+fn frame_ply<T: Real, const D: usize>(p: &Particles<T, D>) -> Vec<u8> {
+    let idx = p.index_by_id();
+    let pad = |v: &Vector<T, D>| {
+        let mut o = [T::zero(); 3];
+        for a in 0..D {
+            o[a] = v[a];
+        }
+        o
+    };
+    let pos: Vec<[T; 3]> = idx.iter().map(|&i| pad(&p.x[i as usize])).collect();
+    let vel: Vec<[T; 3]> = idx.iter().map(|&i| pad(&p.v[i as usize])).collect();
+    let mat: Vec<u16> = idx.iter().map(|&i| p.material[i as usize]).collect();
+    ply_bytes(&pos, &vel, &mat)
+}
+
+fn run_typed<T: Real, const D: usize, K: Kernel, L: GridLayout>(
+    scene: &Scene,
+    opts: &RunOptions,
+) -> Result<RunReport, RunError> {
+    let started = Instant::now();
+    let s = &scene.simulation;
+    let (mut sim, body_of) = build_simulation::<T, D, K, L>(scene, &opts.origin)?;
+    let frames_dir = opts.out.join("frames");
+    std::fs::create_dir_all(&frames_dir).map_err(io_err(&frames_dir))?;
+    let stats_path = opts.out.join("stats.csv");
+    let summary_path = opts.out.join("summary.json");
+    let mut stats = StatsWriter::new(scene.probe.iter().map(|p| p.name.clone()).collect());
+
+    let total_frames = ((s.end_time / s.frame_dt) - 1e-9).ceil().max(1.0) as usize;
+    let last_frame = opts
+        .max_frames
+        .map_or(total_frames, |n| n.min(total_frames));
+    let bar = progress_bar(opts.progress, last_frame as u64);
+    let mut output_seconds = 0.0;
+
+    let mut write_frame = |frame: usize,
+                           sim: &Simulation<T, D, K, L>,
+                           stats: &mut StatsWriter|
+     -> Result<(), RunError> {
+        let t0 = Instant::now();
+        let path = frames_dir.join(format!("frame_{frame:05}.ply"));
+        write_atomic(&path, &frame_ply(&sim.particles)).map_err(io_err(&path))?;
+        let t = sim.totals();
+        let row = StatsRow {
+            frame,
+            time: sim.time,
+            steps: sim.steps,
+            wall_seconds: started.elapsed().as_secs_f64(),
+            particles: sim.particles.len(),
+            mass: t.mass,
+            kinetic_energy: t.kinetic_energy,
+            elastic_energy: t.elastic_energy,
+            momentum: t.momentum,
+            angular_momentum: t.angular_momentum,
+            max_speed: t.max_speed,
+            reference_updates: sim.reference_updates,
+        };
+        stats.push(&row, &probe_values(scene, &sim.particles, &body_of));
+        stats.write(&stats_path).map_err(io_err(&stats_path))?;
+        output_seconds += t0.elapsed().as_secs_f64();
+        Ok(())
+    };
+
+    write_frame(0, &sim, &mut stats)?;
+    let mut outcome: Result<(), RunError> = Ok(());
+    let mut frames_done = 0;
+    for frame in 1..=last_frame {
+        let target = (frame as f64 * s.frame_dt).min(s.end_time);
+        let stepped = sim.advance_to(target, |sim| {
+            if let Some(b) = &bar {
+                b.set_message(format!("t = {:.4} s, step {}", sim.time, sim.steps));
+            }
+        });
+        if let Err(e) = stepped {
+            outcome = Err(RunError::Simulation {
+                origin: opts.origin.clone(),
+                detail: e.to_string(),
+                last_frame: frames_done,
+                out: opts.out.display().to_string(),
+            });
+            break;
+        }
+        write_frame(frame, &sim, &mut stats)?;
+        frames_done = frame;
+        if let Some(b) = &bar {
+            b.set_position(frame as u64);
+        }
+    }
+    if let Some(b) = &bar {
+        b.finish_and_clear();
+    }
+    let wall = started.elapsed().as_secs_f64();
+    let summary = summary_json(
+        scene,
+        opts,
+        &sim,
+        wall,
+        output_seconds,
+        frames_done,
+        &outcome,
+    );
+    let text = serde_json::to_string_pretty(&summary).unwrap_or_default();
+    write_atomic(&summary_path, text.as_bytes()).map_err(io_err(&summary_path))?;
+    outcome?;
+    Ok(RunReport {
+        frames: frames_done + 1,
+        steps: sim.steps,
+        particles: sim.particles.len(),
+        wall_seconds: wall,
+    })
+}
+
+fn progress_bar(enabled: bool, frames: u64) -> Option<indicatif::ProgressBar> {
+    use std::io::IsTerminal;
+    if !enabled || !std::io::stderr().is_terminal() {
+        return None;
+    }
+    let bar = indicatif::ProgressBar::new(frames);
+    if let Ok(style) = indicatif::ProgressStyle::with_template(
+        "{elapsed_precise} [{bar:40}] frame {pos}/{len} {msg} (eta {eta})",
+    ) {
+        bar.set_style(style.progress_chars("=> "));
+    }
+    Some(bar)
+}
+
+fn summary_json<T: Real, const D: usize, K: Kernel, L: GridLayout>(
+    scene: &Scene,
+    opts: &RunOptions,
+    sim: &Simulation<T, D, K, L>,
+    wall: f64,
+    output_seconds: f64,
+    frames: usize,
+    outcome: &Result<(), RunError>,
+) -> serde_json::Value {
+    let t = sim.totals();
+    let phases = sim.phase_times();
+    let particle_steps = sim.steps as f64 * sim.particles.len() as f64;
+    let step_seconds = phases.sort + phases.p2g + phases.grid_update + phases.g2p;
+    let nodes_per_particle = K::NODES_PER_AXIS.pow(D as u32) * L::GRIDS;
+    json!({
+        "status": if outcome.is_ok() { "completed" } else { "stopped" },
+        "error": outcome.as_ref().err().map(|e| e.to_string()),
+        "scene_file": opts.origin,
+        "scene": scene,
+        "versions": {
+            "mpm": env!("CARGO_PKG_VERSION"),
+        },
+        "threads": opts.threads,
+        "particles": sim.particles.len(),
+        "bytes_per_particle": sim.particles.bytes_per_particle(),
+        "grid": {
+            "kernel": K::NAME,
+            "layout": L::NAME,
+            "grids": L::GRIDS,
+            "nodes_per_particle": nodes_per_particle,
+            "active_nodes": sim.stepper.grid.node_count(),
+            "active_blocks": sim.stepper.grid.block_count(),
+            "bytes": sim.stepper.grid.heap_bytes(),
+        },
+        "frames_written": frames + 1,
+        "steps": sim.steps,
+        "simulated_time": sim.time,
+        "wave_speed": sim.wave_speed().to_f64(),
+        "timings": {
+            "total_wall_seconds": wall,
+            "step_seconds": step_seconds,
+            "output_seconds": output_seconds,
+            "particle_steps_per_second": if step_seconds > 0.0 { particle_steps / step_seconds } else { 0.0 },
+            "phase_seconds": phases,
+        },
+        "final": t,
+    })
+}

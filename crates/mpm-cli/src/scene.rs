@@ -1,0 +1,1957 @@
+//! Scene files: the TOML keys of `docs/scene-format.md`, `--set` overrides, defaults
+//! and validation. Every error names the file, the dotted key and the fix.
+//!
+//! Loading goes TOML text → `toml::Table` → overrides → dimension-dependent defaults
+//! written into the table → serde (with the failing key's path) → validation. A loaded
+//! [`Scene`] has every default filled in, so serialising it gives the resolved scene.
+
+use std::collections::HashSet;
+use std::fmt;
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+use toml::Value;
+
+use crate::sampling;
+
+/// A scene file that cannot be used, with the file, the key and the fix.
+#[derive(Debug, thiserror::Error)]
+pub enum SceneError {
+    /// The file could not be read.
+    #[error("{file}: cannot read the scene file ({source}). Check the path and permissions.")]
+    Read {
+        file: String,
+        #[source]
+        source: std::io::Error,
+    },
+    /// The text is not valid TOML.
+    #[error(
+        "{file}: line {line}, column {column}: TOML syntax error: {message}. Fix the TOML at \
+         that position (strings need quotes, arrays are [a, b], sections are [name] or [[name]])."
+    )]
+    Syntax {
+        file: String,
+        line: usize,
+        column: usize,
+        message: String,
+    },
+    /// A key is unknown, has the wrong type, or a value is out of range / unsupported.
+    #[error("{file}: {key}: {problem}. {fix}")]
+    Invalid {
+        file: String,
+        /// Dotted path, e.g. `material.0.poisson_ratio`.
+        key: String,
+        problem: String,
+        fix: String,
+    },
+}
+
+impl SceneError {
+    /// The dotted key the error is about, when there is one.
+    pub fn key(&self) -> Option<&str> {
+        match self {
+            SceneError::Invalid { key, .. } => Some(key),
+            _ => None,
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------------
+// Keys
+// ---------------------------------------------------------------------------------
+
+/// A whole scene file, every default filled in.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Scene {
+    pub simulation: Simulation,
+    pub material: Vec<MaterialSpec>,
+    pub body: Vec<BodySpec>,
+    #[serde(default)]
+    pub output: OutputSpec,
+    #[serde(default)]
+    pub probe: Vec<ProbeSpec>,
+    #[serde(default)]
+    pub collider: Vec<ColliderSpec>,
+}
+
+/// `[simulation]`. `gravity` and `grid` depend on other keys; [`parse_scene`] fills
+/// them before deserialising, so they are always present here.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Simulation {
+    #[serde(default = "default_dim")]
+    pub dim: usize,
+    #[serde(default)]
+    pub precision: Precision,
+    pub h: f64,
+    pub domain_min: Vec<f64>,
+    pub domain_max: Vec<f64>,
+    #[serde(default = "default_end_time")]
+    pub end_time: f64,
+    #[serde(default = "default_frame_dt")]
+    pub frame_dt: f64,
+    #[serde(default)]
+    pub dt: TimeStep,
+    #[serde(default = "default_cfl")]
+    pub cfl: f64,
+    pub gravity: Vec<f64>,
+    #[serde(default)]
+    pub kernel: Kernel,
+    pub grid: GridKind,
+    #[serde(default)]
+    pub transfer: TransferKind,
+    #[serde(default = "default_flip_blend")]
+    pub flip_blend: f64,
+    #[serde(default)]
+    pub reference: ReferenceKind,
+    #[serde(default = "default_adaptive")]
+    pub adaptive_epsilon: f64,
+    #[serde(default = "default_adaptive")]
+    pub adaptive_eta: f64,
+    #[serde(default)]
+    pub integrator: IntegratorKind,
+    #[serde(default)]
+    pub boundary: Boundary,
+}
+
+fn default_dim() -> usize {
+    3
+}
+fn default_end_time() -> f64 {
+    1.0
+}
+fn default_frame_dt() -> f64 {
+    0.02
+}
+fn default_cfl() -> f64 {
+    0.4
+}
+fn default_flip_blend() -> f64 {
+    0.95
+}
+fn default_adaptive() -> f64 {
+    0.01
+}
+fn default_scale() -> f64 {
+    1.0
+}
+
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum Precision {
+    F32,
+    #[default]
+    F64,
+}
+
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum Kernel {
+    Linear,
+    Quadratic,
+    Cubic,
+    #[default]
+    Compact,
+}
+
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+#[serde(rename_all = "kebab-case")]
+pub enum GridKind {
+    Single,
+    Dual,
+}
+
+impl GridKind {
+    /// The resolved default: the compact kernel's scheme is the dual grid.
+    pub fn default_for(kernel: Kernel) -> GridKind {
+        match kernel {
+            Kernel::Compact => GridKind::Dual,
+            _ => GridKind::Single,
+        }
+    }
+}
+
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum TransferKind {
+    Pic,
+    #[default]
+    Apic,
+    Mls,
+    Flip,
+}
+
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum ReferenceKind {
+    #[default]
+    Eulerian,
+    TotalLagrangian,
+    Adaptive,
+}
+
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum IntegratorKind {
+    #[default]
+    Explicit,
+    SemiImplicit,
+    Implicit,
+}
+
+/// Domain walls and colliders.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum Boundary {
+    Sticky,
+    #[default]
+    Slip,
+    Separate,
+}
+
+/// `dt = "auto"` (CFL-limited) or a fixed number of seconds.
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub enum TimeStep {
+    #[default]
+    Auto,
+    Fixed(f64),
+}
+
+impl Serialize for TimeStep {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        match self {
+            TimeStep::Auto => s.serialize_str("auto"),
+            TimeStep::Fixed(x) => s.serialize_f64(*x),
+        }
+    }
+}
+
+impl<'de> Deserialize<'de> for TimeStep {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct V;
+        impl serde::de::Visitor<'_> for V {
+            type Value = TimeStep;
+            fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+                f.write_str("a number of seconds or \"auto\"")
+            }
+            fn visit_str<E: serde::de::Error>(self, v: &str) -> Result<TimeStep, E> {
+                if v == "auto" {
+                    Ok(TimeStep::Auto)
+                } else {
+                    Err(E::invalid_value(serde::de::Unexpected::Str(v), &self))
+                }
+            }
+            fn visit_f64<E: serde::de::Error>(self, v: f64) -> Result<TimeStep, E> {
+                Ok(TimeStep::Fixed(v))
+            }
+            fn visit_i64<E: serde::de::Error>(self, v: i64) -> Result<TimeStep, E> {
+                Ok(TimeStep::Fixed(v as f64))
+            }
+            fn visit_u64<E: serde::de::Error>(self, v: u64) -> Result<TimeStep, E> {
+                Ok(TimeStep::Fixed(v as f64))
+            }
+        }
+        d.deserialize_any(V)
+    }
+}
+
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+#[serde(rename_all = "kebab-case")]
+pub enum ModelKind {
+    FixedCorotated,
+    NeoHookean,
+    JFluid,
+    DruckerPrager,
+    Nacc,
+    VonMises,
+    Snow,
+}
+
+impl ModelKind {
+    /// The models this build can simulate; the others are accepted by the parser so
+    /// that the error can say "not supported yet" instead of "unknown variant".
+    pub fn is_supported(self) -> bool {
+        matches!(self, ModelKind::FixedCorotated | ModelKind::NeoHookean)
+    }
+
+    /// Whether the model needs `youngs_modulus` and `poisson_ratio`.
+    pub fn is_elastic(self) -> bool {
+        self != ModelKind::JFluid
+    }
+
+    /// The optional keys (beyond name, model, density) that apply to this model.
+    pub fn allowed_keys(self) -> &'static [&'static str] {
+        const E: [&str; 2] = ["youngs_modulus", "poisson_ratio"];
+        match self {
+            ModelKind::FixedCorotated | ModelKind::NeoHookean => &E,
+            ModelKind::JFluid => &["bulk_modulus", "gamma", "viscosity"],
+            ModelKind::DruckerPrager => &[E[0], E[1], "friction_angle_deg", "cohesion"],
+            ModelKind::VonMises => &[E[0], E[1], "yield_stress", "hardening"],
+            ModelKind::Nacc => &[E[0], E[1], "alpha0", "beta", "xi", "m", "hardening"],
+            ModelKind::Snow => &[E[0], E[1], "theta_c", "theta_s", "hardening"],
+        }
+    }
+
+    fn name(self) -> &'static str {
+        match self {
+            ModelKind::FixedCorotated => "fixed-corotated",
+            ModelKind::NeoHookean => "neo-hookean",
+            ModelKind::JFluid => "j-fluid",
+            ModelKind::DruckerPrager => "drucker-prager",
+            ModelKind::Nacc => "nacc",
+            ModelKind::VonMises => "von-mises",
+            ModelKind::Snow => "snow",
+        }
+    }
+}
+
+/// `[[material]]`. Model-specific keys are optional; validation rejects the ones that
+/// do not apply to `model`.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct MaterialSpec {
+    pub name: String,
+    pub model: ModelKind,
+    pub density: f64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub youngs_modulus: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub poisson_ratio: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bulk_modulus: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gamma: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub viscosity: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub friction_angle_deg: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cohesion: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub yield_stress: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub hardening: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub alpha0: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub beta: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub xi: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub m: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub theta_c: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub theta_s: Option<f64>,
+}
+
+impl MaterialSpec {
+    /// Lamé parameters `(mu, lambda)` from E and ν (elastic models, after validation).
+    pub fn lame_parameters(&self) -> Option<(f64, f64)> {
+        let e = self.youngs_modulus?;
+        let nu = self.poisson_ratio?;
+        Some((
+            e / (2.0 * (1.0 + nu)),
+            e * nu / ((1.0 + nu) * (1.0 - 2.0 * nu)),
+        ))
+    }
+
+    /// The optional keys that are set, by name.
+    fn set_optional_keys(&self) -> Vec<&'static str> {
+        let all = [
+            ("youngs_modulus", self.youngs_modulus),
+            ("poisson_ratio", self.poisson_ratio),
+            ("bulk_modulus", self.bulk_modulus),
+            ("gamma", self.gamma),
+            ("viscosity", self.viscosity),
+            ("friction_angle_deg", self.friction_angle_deg),
+            ("cohesion", self.cohesion),
+            ("yield_stress", self.yield_stress),
+            ("hardening", self.hardening),
+            ("alpha0", self.alpha0),
+            ("beta", self.beta),
+            ("xi", self.xi),
+            ("m", self.m),
+            ("theta_c", self.theta_c),
+            ("theta_s", self.theta_s),
+        ];
+        all.iter()
+            .filter(|(_, v)| v.is_some())
+            .map(|(k, _)| *k)
+            .collect()
+    }
+}
+
+/// `shape = { type = "...", ... }`.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[serde(tag = "type", rename_all = "kebab-case", deny_unknown_fields)]
+pub enum Shape {
+    /// A ball (a disc in 2-D).
+    Sphere {
+        center: Vec<f64>,
+        radius: f64,
+    },
+    Box {
+        min: Vec<f64>,
+        max: Vec<f64>,
+    },
+    /// 3-D only: `length` along `axis` (any non-zero vector), centred on `center`.
+    Cylinder {
+        center: Vec<f64>,
+        axis: Vec<f64>,
+        radius: f64,
+        length: f64,
+    },
+    /// Not supported yet. `translate` is filled with zeros when absent.
+    Mesh {
+        path: String,
+        #[serde(default = "default_scale")]
+        scale: f64,
+        translate: Vec<f64>,
+    },
+}
+
+impl Shape {
+    fn type_name(&self) -> &'static str {
+        match self {
+            Shape::Sphere { .. } => "sphere",
+            Shape::Box { .. } => "box",
+            Shape::Cylinder { .. } => "cylinder",
+            Shape::Mesh { .. } => "mesh",
+        }
+    }
+}
+
+/// `[[body]]`. `particles_per_cell`, `velocity` and `angular_velocity` depend on `dim`
+/// and are filled by [`parse_scene`] when absent.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct BodySpec {
+    /// Name of a `[[material]]`.
+    pub material: String,
+    pub shape: Shape,
+    pub particles_per_cell: usize,
+    pub velocity: Vec<f64>,
+    /// About the body's centroid: 3 numbers in 3-D, 1 in 2-D.
+    pub angular_velocity: Vec<f64>,
+}
+
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+#[serde(rename_all = "kebab-case")]
+pub enum OutputFormat {
+    Ply,
+    Vtu,
+}
+
+/// `[output]`.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct OutputSpec {
+    #[serde(default = "default_formats")]
+    pub format: Vec<OutputFormat>,
+}
+
+fn default_formats() -> Vec<OutputFormat> {
+    vec![OutputFormat::Ply]
+}
+
+impl Default for OutputSpec {
+    fn default() -> Self {
+        OutputSpec {
+            format: default_formats(),
+        }
+    }
+}
+
+/// What a probe measures over one body's particles.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum ProbeQuantity {
+    MinX,
+    MinY,
+    MinZ,
+    MaxX,
+    MaxY,
+    MaxZ,
+    MeanX,
+    MeanY,
+    MeanZ,
+}
+
+/// How a probe reduces a coordinate over particles.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Reduction {
+    Min,
+    Max,
+    Mean,
+}
+
+impl ProbeQuantity {
+    /// Coordinate axis (0 = x, 1 = y, 2 = z).
+    pub fn axis(self) -> usize {
+        use ProbeQuantity::*;
+        match self {
+            MinX | MaxX | MeanX => 0,
+            MinY | MaxY | MeanY => 1,
+            MinZ | MaxZ | MeanZ => 2,
+        }
+    }
+
+    pub fn reduction(self) -> Reduction {
+        use ProbeQuantity::*;
+        match self {
+            MinX | MinY | MinZ => Reduction::Min,
+            MaxX | MaxY | MaxZ => Reduction::Max,
+            MeanX | MeanY | MeanZ => Reduction::Mean,
+        }
+    }
+}
+
+/// `[[probe]]`: a scalar per frame in stats.csv.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ProbeSpec {
+    pub name: String,
+    pub quantity: ProbeQuantity,
+    /// Index into `body`.
+    pub body: usize,
+}
+
+/// `[[collider]]`. `velocity` is filled with zeros when absent.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[serde(tag = "type", rename_all = "kebab-case", deny_unknown_fields)]
+pub enum ColliderSpec {
+    Plane {
+        point: Vec<f64>,
+        normal: Vec<f64>,
+        #[serde(default)]
+        kind: Boundary,
+        #[serde(default)]
+        friction: f64,
+        velocity: Vec<f64>,
+    },
+    Sphere {
+        center: Vec<f64>,
+        radius: f64,
+        #[serde(default)]
+        kind: Boundary,
+        #[serde(default)]
+        friction: f64,
+        velocity: Vec<f64>,
+    },
+}
+
+// ---------------------------------------------------------------------------------
+// Loading
+// ---------------------------------------------------------------------------------
+
+const SECTIONS: [&str; 6] = [
+    "simulation",
+    "material",
+    "body",
+    "output",
+    "probe",
+    "collider",
+];
+
+/// Reads, overrides (`KEY=VALUE`, see [`parse_scene`]), resolves and validates a scene file.
+pub fn load_scene(path: &Path, overrides: &[String]) -> Result<Scene, SceneError> {
+    let file = path.display().to_string();
+    let text = std::fs::read_to_string(path).map_err(|source| SceneError::Read {
+        file: file.clone(),
+        source,
+    })?;
+    parse_scene(&text, &file, overrides)
+}
+
+/// Parses scene text; `origin` names the file in errors. Each override is
+/// `KEY=VALUE` with a dotted KEY (`simulation.kernel`, `material.0.density`) and a
+/// TOML VALUE (`0.02`, `[0,1,0]`, `true`), or a bare word taken as a string.
+pub fn parse_scene(text: &str, origin: &str, overrides: &[String]) -> Result<Scene, SceneError> {
+    let mut doc: toml::Table = text.parse().map_err(|e: toml::de::Error| {
+        let (line, column) = e
+            .span()
+            .map(|s| line_column(text, s.start))
+            .unwrap_or((1, 1));
+        SceneError::Syntax {
+            file: origin.to_string(),
+            line,
+            column,
+            message: clean(e.message()),
+        }
+    })?;
+    for o in overrides {
+        apply_override(&mut doc, o, origin)?;
+    }
+    fill_resolved_defaults(&mut doc);
+    let scene: Scene = serde_path_to_error::deserialize(doc).map_err(|e| serde_error(e, origin))?;
+    scene.validate(origin)?;
+    Ok(scene)
+}
+
+fn line_column(text: &str, offset: usize) -> (usize, usize) {
+    let before = &text[..offset.min(text.len())];
+    let line = before.matches('\n').count() + 1;
+    let column = before.rsplit('\n').next().unwrap_or("").chars().count() + 1;
+    (line, column)
+}
+
+/// Trims trailing whitespace and full stops so messages compose as "problem. fix".
+fn clean(msg: &str) -> String {
+    msg.trim().trim_end_matches('.').replace('\n', " ")
+}
+
+fn invalid(
+    file: &str,
+    key: &str,
+    problem: impl Into<String>,
+    fix: impl Into<String>,
+) -> SceneError {
+    SceneError::Invalid {
+        file: file.to_string(),
+        key: key.to_string(),
+        problem: problem.into(),
+        fix: fix.into(),
+    }
+}
+
+fn serde_error(e: serde_path_to_error::Error<toml::de::Error>, file: &str) -> SceneError {
+    let mut segments: Vec<String> = Vec::new();
+    for seg in e.path().iter() {
+        use serde_path_to_error::Segment;
+        match seg {
+            Segment::Seq { index } => segments.push(index.to_string()),
+            Segment::Map { key } => segments.push(key.clone()),
+            Segment::Enum { variant } => segments.push(variant.clone()),
+            Segment::Unknown => {}
+        }
+    }
+    let message = clean(e.inner().message());
+    // "missing field `h`" / "unknown field `kernal`": name the field itself.
+    for prefix in ["missing field `", "unknown field `"] {
+        if let Some(rest) = message.strip_prefix(prefix) {
+            if let Some(field) = rest.split('`').next() {
+                if segments.last().map(String::as_str) != Some(field) {
+                    segments.push(field.to_string());
+                }
+            }
+        }
+    }
+    let key = if segments.is_empty() {
+        "(top level)".to_string()
+    } else {
+        segments.join(".")
+    };
+    let fix = if message.starts_with("unknown field") {
+        "Remove or correct the key; the allowed keys are listed above (see docs/scene-format.md)"
+    } else if message.starts_with("missing field") {
+        "Add this key (see docs/scene-format.md)"
+    } else if message.starts_with("unknown variant") {
+        "Use one of the listed values"
+    } else {
+        "Give this key a value of the expected type (see docs/scene-format.md)"
+    };
+    invalid(file, &key, message, fix)
+}
+
+/// Parses an override value as TOML, or as a plain string when it is not TOML.
+fn parse_value(raw: &str) -> Value {
+    let doc = format!("v = {raw}");
+    match doc.parse::<toml::Table>() {
+        Ok(mut t) => t
+            .remove("v")
+            .unwrap_or_else(|| Value::String(raw.to_string())),
+        Err(_) => Value::String(raw.to_string()),
+    }
+}
+
+fn apply_override(doc: &mut toml::Table, arg: &str, file: &str) -> Result<(), SceneError> {
+    let Some((key, raw)) = arg.split_once('=') else {
+        return Err(invalid(
+            file,
+            arg,
+            "the override has no '='",
+            "Write --set KEY=VALUE, e.g. --set simulation.kernel=quadratic",
+        ));
+    };
+    let key = key.trim();
+    let value = parse_value(raw.trim());
+    let segments: Vec<&str> = key.split('.').collect();
+    if segments.iter().any(|s| s.is_empty()) {
+        return Err(invalid(
+            file,
+            key,
+            "the override key has an empty segment",
+            "Write a dotted path such as simulation.h or body.0.velocity",
+        ));
+    }
+    if !SECTIONS.contains(&segments[0]) {
+        return Err(invalid(
+            file,
+            key,
+            format!("unknown section `{}`", segments[0]),
+            format!("The sections are: {}", SECTIONS.join(", ")),
+        ));
+    }
+    let (last, parents) = segments.split_last().expect("non-empty");
+    if parents.is_empty() {
+        doc.insert(last.to_string(), value);
+        return Ok(());
+    }
+    // Walk down, creating missing tables, indexing arrays by number. A missing array
+    // section is created empty, so an index into it reports "out of range".
+    let is_array = matches!(segments[0], "material" | "body" | "probe" | "collider");
+    let mut cur: &mut Value = doc.entry(parents[0].to_string()).or_insert_with(|| {
+        if is_array {
+            Value::Array(Vec::new())
+        } else {
+            Value::Table(toml::Table::new())
+        }
+    });
+    for (depth, seg) in parents.iter().enumerate().skip(1) {
+        let here = segments[..depth].join(".");
+        cur = descend(cur, seg, &here, key, file)?;
+    }
+    let here = parents.join(".");
+    match cur {
+        Value::Table(t) => {
+            t.insert(last.to_string(), value);
+        }
+        Value::Array(a) => {
+            let slot = array_slot(a, last, &here, key, file)?;
+            *slot = value;
+        }
+        _ => {
+            return Err(invalid(
+                file,
+                key,
+                format!("`{here}` is a value, not a table"),
+                "Override the whole value instead",
+            ))
+        }
+    }
+    Ok(())
+}
+
+fn descend<'a>(
+    cur: &'a mut Value,
+    seg: &str,
+    here: &str,
+    key: &str,
+    file: &str,
+) -> Result<&'a mut Value, SceneError> {
+    match cur {
+        Value::Table(t) => Ok(t
+            .entry(seg.to_string())
+            .or_insert_with(|| Value::Table(toml::Table::new()))),
+        Value::Array(a) => array_slot(a, seg, here, key, file),
+        _ => Err(invalid(
+            file,
+            key,
+            format!("`{here}` is a value, not a table"),
+            "Override the whole value instead",
+        )),
+    }
+}
+
+fn array_slot<'a>(
+    a: &'a mut [Value],
+    seg: &str,
+    here: &str,
+    key: &str,
+    file: &str,
+) -> Result<&'a mut Value, SceneError> {
+    let len = a.len();
+    let Ok(i) = seg.parse::<usize>() else {
+        return Err(invalid(
+            file,
+            key,
+            format!("`{here}` is an array and `{seg}` is not an index"),
+            format!("Use an index from 0 to {}", len.saturating_sub(1)),
+        ));
+    };
+    a.get_mut(i).ok_or_else(|| {
+        invalid(
+            file,
+            key,
+            format!("index {i} is out of range: `{here}` has {len} entries"),
+            if len == 0 {
+                "Add an entry to the scene file first".to_string()
+            } else {
+                format!("Use an index from 0 to {}", len - 1)
+            },
+        )
+    })
+}
+
+/// Writes the defaults that depend on other keys (`dim`, `kernel`) into the table,
+/// so the serde structs hold plain resolved values. Malformed input is left alone
+/// for serde to report with its path.
+fn fill_resolved_defaults(doc: &mut toml::Table) {
+    let sim = doc.get("simulation").and_then(Value::as_table);
+    let dim = sim
+        .and_then(|s| s.get("dim"))
+        .and_then(Value::as_integer)
+        .unwrap_or(3);
+    let kernel = sim
+        .and_then(|s| s.get("kernel"))
+        .and_then(Value::as_str)
+        .unwrap_or("compact")
+        .to_string();
+    let d = if dim == 2 { 2 } else { 3 };
+    let floats = |v: &[f64]| Value::Array(v.iter().map(|x| Value::Float(*x)).collect());
+    let zeros = |n: usize| floats(&vec![0.0; n]);
+
+    if let Some(Value::Table(sim)) = doc.get_mut("simulation") {
+        sim.entry("gravity").or_insert_with(|| {
+            if d == 2 {
+                floats(&[0.0, -9.81])
+            } else {
+                floats(&[0.0, -9.81, 0.0])
+            }
+        });
+        sim.entry("grid").or_insert_with(|| {
+            Value::String(
+                if kernel == "compact" {
+                    "dual"
+                } else {
+                    "single"
+                }
+                .into(),
+            )
+        });
+    }
+    if let Some(Value::Array(bodies)) = doc.get_mut("body") {
+        for b in bodies {
+            if let Value::Table(t) = b {
+                t.entry("particles_per_cell")
+                    .or_insert(Value::Integer(if d == 2 { 4 } else { 8 }));
+                t.entry("velocity").or_insert_with(|| zeros(d));
+                t.entry("angular_velocity")
+                    .or_insert_with(|| zeros(if d == 2 { 1 } else { 3 }));
+                if let Some(Value::Table(shape)) = t.get_mut("shape") {
+                    if shape.get("type").and_then(Value::as_str) == Some("mesh") {
+                        shape.entry("translate").or_insert_with(|| zeros(d));
+                    }
+                }
+            }
+        }
+    }
+    if let Some(Value::Array(colliders)) = doc.get_mut("collider") {
+        for c in colliders {
+            if let Value::Table(t) = c {
+                t.entry("velocity").or_insert_with(|| zeros(d));
+            }
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------------
+// Validation
+// ---------------------------------------------------------------------------------
+
+/// Standard stats.csv columns; probe names must not repeat them.
+const STATS_COLUMNS: [&str; 16] = [
+    "frame",
+    "time",
+    "steps",
+    "wall_seconds",
+    "particles",
+    "mass",
+    "kinetic_energy",
+    "elastic_energy",
+    "momentum_x",
+    "momentum_y",
+    "momentum_z",
+    "angular_momentum_x",
+    "angular_momentum_y",
+    "angular_momentum_z",
+    "max_speed",
+    "reference_updates",
+];
+
+fn plural(n: usize) -> &'static str {
+    if n == 1 {
+        ""
+    } else {
+        "s"
+    }
+}
+
+/// `[a, b, c]` with at most 6 decimals, so rounding noise does not clutter messages.
+fn fmt_vec(v: &[f64]) -> String {
+    let parts: Vec<String> = v
+        .iter()
+        .map(|x| {
+            let s = format!("{x:.6}");
+            let s = s.trim_end_matches('0').trim_end_matches('.');
+            if s == "-0" {
+                "0".to_string()
+            } else {
+                s.to_string()
+            }
+        })
+        .collect();
+    format!("[{}]", parts.join(", "))
+}
+
+struct Check<'a> {
+    file: &'a str,
+}
+
+impl Check<'_> {
+    fn err(&self, key: &str, problem: impl Into<String>, fix: impl Into<String>) -> SceneError {
+        invalid(self.file, key, problem, fix)
+    }
+
+    fn positive(&self, key: &str, x: f64) -> Result<(), SceneError> {
+        if x > 0.0 && x.is_finite() {
+            Ok(())
+        } else {
+            Err(self.err(
+                key,
+                format!("{x} is out of range"),
+                "It must be a finite number > 0",
+            ))
+        }
+    }
+
+    fn finite(&self, key: &str, x: f64) -> Result<(), SceneError> {
+        if x.is_finite() {
+            Ok(())
+        } else {
+            Err(self.err(
+                key,
+                format!("{x} is not a finite number"),
+                "Give a finite number",
+            ))
+        }
+    }
+
+    fn vector(&self, key: &str, v: &[f64], n: usize, why: &str) -> Result<(), SceneError> {
+        if v.len() != n {
+            return Err(self.err(
+                key,
+                format!("has {} number{}", v.len(), plural(v.len())),
+                format!("Give exactly {n} number{} ({why})", plural(n)),
+            ));
+        }
+        if v.iter().any(|x| !x.is_finite()) {
+            return Err(self.err(key, "contains a non-finite number", "Give finite numbers"));
+        }
+        Ok(())
+    }
+
+    fn not_supported(&self, key: &str, value: &str) -> SceneError {
+        self.err(
+            key,
+            format!("\"{value}\" is not supported yet"),
+            "A later version adds it; choose a supported value for now (see docs/scene-format.md)",
+        )
+    }
+}
+
+impl Scene {
+    /// Checks every key's range; `origin` names the file in errors. [`parse_scene`]
+    /// calls this; call it again after editing a scene in code.
+    pub fn validate(&self, origin: &str) -> Result<(), SceneError> {
+        let c = Check { file: origin };
+        let s = &self.simulation;
+        if !(s.dim == 2 || s.dim == 3) {
+            return Err(c.err(
+                "simulation.dim",
+                format!("{} is out of range", s.dim),
+                "dim must be 2 or 3",
+            ));
+        }
+        let dim = s.dim;
+        let per_axis = format!("one per axis, dim = {dim}");
+        c.positive("simulation.h", s.h)?;
+        c.vector("simulation.domain_min", &s.domain_min, dim, &per_axis)?;
+        c.vector("simulation.domain_max", &s.domain_max, dim, &per_axis)?;
+        for a in 0..dim {
+            let width = s.domain_max[a] - s.domain_min[a];
+            // Small tolerance: 4 * h must not fail on a rounding of the last bit.
+            if width < 4.0 * s.h * (1.0 - 1e-9) {
+                return Err(c.err(
+                    "simulation.domain_max",
+                    format!(
+                        "axis {a}: domain_max - domain_min = {width} is less than 4 cells of width h = {}",
+                        s.h
+                    ),
+                    format!(
+                        "Make domain_max exceed domain_min by at least 4 cells (4 * h = {}) on every axis",
+                        4.0 * s.h
+                    ),
+                ));
+            }
+        }
+        c.positive("simulation.end_time", s.end_time)?;
+        c.positive("simulation.frame_dt", s.frame_dt)?;
+        if let TimeStep::Fixed(dt) = s.dt {
+            if !(dt > 0.0 && dt.is_finite()) {
+                return Err(c.err(
+                    "simulation.dt",
+                    format!("{dt} is out of range"),
+                    "dt must be a number > 0 or \"auto\"",
+                ));
+            }
+        }
+        if !(s.cfl > 0.0 && s.cfl <= 1.0) {
+            return Err(c.err(
+                "simulation.cfl",
+                format!("{} is out of range", s.cfl),
+                "cfl must satisfy 0 < cfl <= 1",
+            ));
+        }
+        c.vector("simulation.gravity", &s.gravity, dim, &per_axis)?;
+        if !(0.0..=1.0).contains(&s.flip_blend) {
+            return Err(c.err(
+                "simulation.flip_blend",
+                format!("{} is out of range", s.flip_blend),
+                "flip_blend must lie in [0, 1]",
+            ));
+        }
+        c.positive("simulation.adaptive_epsilon", s.adaptive_epsilon)?;
+        c.positive("simulation.adaptive_eta", s.adaptive_eta)?;
+        match s.reference {
+            ReferenceKind::Eulerian => {}
+            ReferenceKind::TotalLagrangian => {
+                return Err(c.not_supported("simulation.reference", "total-lagrangian"))
+            }
+            ReferenceKind::Adaptive => {
+                return Err(c.not_supported("simulation.reference", "adaptive"))
+            }
+        }
+        match s.integrator {
+            IntegratorKind::Explicit => {}
+            IntegratorKind::SemiImplicit => {
+                return Err(c.not_supported("simulation.integrator", "semi-implicit"))
+            }
+            IntegratorKind::Implicit => {
+                return Err(c.not_supported("simulation.integrator", "implicit"))
+            }
+        }
+
+        // Materials.
+        if self.material.is_empty() {
+            return Err(c.err(
+                "material",
+                "no [[material]] is given",
+                "Add at least one [[material]] table",
+            ));
+        }
+        let mut names = HashSet::new();
+        for (i, m) in self.material.iter().enumerate() {
+            let k = |f: &str| format!("material.{i}.{f}");
+            if m.name.trim().is_empty() {
+                return Err(c.err(
+                    &k("name"),
+                    "the name is empty",
+                    "Give the material a non-empty name",
+                ));
+            }
+            if !names.insert(m.name.as_str()) {
+                return Err(c.err(
+                    &k("name"),
+                    format!("the name \"{}\" is used by another material", m.name),
+                    "Material names must be unique",
+                ));
+            }
+            if !m.model.is_supported() {
+                return Err(c.not_supported(&k("model"), m.model.name()));
+            }
+            let allowed = m.model.allowed_keys();
+            for key in m.set_optional_keys() {
+                if !allowed.contains(&key) {
+                    return Err(c.err(
+                        &k(key),
+                        format!("does not apply to model \"{}\"", m.model.name()),
+                        format!(
+                            "Remove it; the keys of \"{}\" are: name, model, density, {}",
+                            m.model.name(),
+                            allowed.join(", ")
+                        ),
+                    ));
+                }
+            }
+            c.positive(&k("density"), m.density)?;
+            if m.model.is_elastic() {
+                let Some(e) = m.youngs_modulus else {
+                    return Err(c.err(
+                        &k("youngs_modulus"),
+                        "is missing",
+                        format!(
+                            "Model \"{}\" needs youngs_modulus (> 0, Pa)",
+                            m.model.name()
+                        ),
+                    ));
+                };
+                c.positive(&k("youngs_modulus"), e)?;
+                let Some(nu) = m.poisson_ratio else {
+                    return Err(c.err(
+                        &k("poisson_ratio"),
+                        "is missing",
+                        format!(
+                            "Model \"{}\" needs poisson_ratio (-1 < poisson_ratio < 0.5)",
+                            m.model.name()
+                        ),
+                    ));
+                };
+                if !(nu > -1.0 && nu < 0.5) {
+                    return Err(c.err(
+                        &k("poisson_ratio"),
+                        format!("{nu} is out of range"),
+                        "poisson_ratio must satisfy -1 < poisson_ratio < 0.5",
+                    ));
+                }
+            }
+            for (key, v) in [
+                ("bulk_modulus", m.bulk_modulus),
+                ("gamma", m.gamma),
+                ("viscosity", m.viscosity),
+                ("friction_angle_deg", m.friction_angle_deg),
+                ("cohesion", m.cohesion),
+                ("yield_stress", m.yield_stress),
+                ("hardening", m.hardening),
+                ("alpha0", m.alpha0),
+                ("beta", m.beta),
+                ("xi", m.xi),
+                ("m", m.m),
+                ("theta_c", m.theta_c),
+                ("theta_s", m.theta_s),
+            ] {
+                if let Some(v) = v {
+                    c.finite(&k(key), v)?;
+                }
+            }
+        }
+
+        // Bodies.
+        if self.body.is_empty() {
+            return Err(c.err(
+                "body",
+                "no [[body]] is given",
+                "Add at least one [[body]] table",
+            ));
+        }
+        let domain = format!(
+            "the domain is {} to {}",
+            fmt_vec(&s.domain_min),
+            fmt_vec(&s.domain_max)
+        );
+        for (i, b) in self.body.iter().enumerate() {
+            let k = |f: &str| format!("body.{i}.{f}");
+            if !self.material.iter().any(|m| m.name == b.material) {
+                let known: Vec<&str> = self.material.iter().map(|m| m.name.as_str()).collect();
+                return Err(c.err(
+                    &k("material"),
+                    format!("no material is named \"{}\"", b.material),
+                    format!("Use one of the [[material]] names: {}", known.join(", ")),
+                ));
+            }
+            if !(1..=1000).contains(&b.particles_per_cell) {
+                return Err(c.err(
+                    &k("particles_per_cell"),
+                    format!("{} is out of range", b.particles_per_cell),
+                    "particles_per_cell must be between 1 and 1000",
+                ));
+            }
+            c.vector(&k("velocity"), &b.velocity, dim, &per_axis)?;
+            let (na, why) = if dim == 2 {
+                (1, "2-D: one rate about the z axis")
+            } else {
+                (3, "3-D: one per axis")
+            };
+            c.vector(&k("angular_velocity"), &b.angular_velocity, na, why)?;
+            let shape_key = k("shape");
+            match &b.shape {
+                Shape::Sphere { center, radius } => {
+                    c.vector(&k("shape.center"), center, dim, &per_axis)?;
+                    c.positive(&k("shape.radius"), *radius)?;
+                }
+                Shape::Box { min, max } => {
+                    c.vector(&k("shape.min"), min, dim, &per_axis)?;
+                    c.vector(&k("shape.max"), max, dim, &per_axis)?;
+                }
+                Shape::Cylinder {
+                    center,
+                    axis,
+                    radius,
+                    length,
+                } => {
+                    if dim != 3 {
+                        return Err(c.err(
+                            &shape_key,
+                            "a cylinder is 3-D only",
+                            "In 2-D use a box (a cylinder's cross-section) or a sphere (a disc)",
+                        ));
+                    }
+                    c.vector(&k("shape.center"), center, 3, &per_axis)?;
+                    c.vector(&k("shape.axis"), axis, 3, &per_axis)?;
+                    if axis.iter().all(|x| *x == 0.0) {
+                        return Err(c.err(
+                            &k("shape.axis"),
+                            "the axis is the zero vector",
+                            "Give a non-zero direction, e.g. [0, 1, 0]",
+                        ));
+                    }
+                    c.positive(&k("shape.radius"), *radius)?;
+                    c.positive(&k("shape.length"), *length)?;
+                }
+                Shape::Mesh { .. } => {
+                    return Err(c.not_supported(&k("shape.type"), b.shape.type_name()));
+                }
+            }
+            let (lo, hi) =
+                sampling::bounding_box(&b.shape, dim).expect("vector lengths were checked above");
+            if (0..dim).any(|a| lo[a] < s.domain_min[a] || hi[a] > s.domain_max[a]) {
+                return Err(c.err(
+                    &shape_key,
+                    format!(
+                        "the {} spans {} to {}, outside the domain",
+                        b.shape.type_name(),
+                        fmt_vec(&lo[..dim]),
+                        fmt_vec(&hi[..dim])
+                    ),
+                    format!("Move or shrink it so it lies inside the domain: {domain}"),
+                ));
+            }
+            if !sampling::has_samples(&b.shape, dim, s.h, b.particles_per_cell) {
+                return Err(c.err(
+                    &format!("body.{i}"),
+                    "the body is empty: sampling its shape gives no particles",
+                    format!(
+                        "Make the shape larger than a particle spacing (h = {}), with min < max for a box",
+                        s.h
+                    ),
+                ));
+            }
+        }
+
+        // Output.
+        for (i, f) in self.output.format.iter().enumerate() {
+            if *f == OutputFormat::Vtu {
+                return Err(c.not_supported(&format!("output.format.{i}"), "vtu"));
+            }
+        }
+
+        // Probes.
+        let mut probe_names = HashSet::new();
+        for (i, p) in self.probe.iter().enumerate() {
+            let k = |f: &str| format!("probe.{i}.{f}");
+            if p.name.is_empty()
+                || p.name.contains([',', '"', '\n', '\r'])
+                || STATS_COLUMNS.contains(&p.name.as_str())
+                || !probe_names.insert(p.name.as_str())
+            {
+                return Err(c.err(
+                    &k("name"),
+                    format!("\"{}\" cannot name a stats.csv column", p.name),
+                    "Use a unique, non-empty name without commas or quotes that is not a standard column",
+                ));
+            }
+            if p.body >= self.body.len() {
+                return Err(c.err(
+                    &k("body"),
+                    format!("body index {} does not exist", p.body),
+                    format!(
+                        "Use a body index from 0 to {} (the order of [[body]] tables)",
+                        self.body.len() - 1
+                    ),
+                ));
+            }
+            if dim == 2 && p.quantity.axis() == 2 {
+                return Err(c.err(
+                    &k("quantity"),
+                    "a z quantity in a 2-D scene",
+                    "In 2-D use min_x, max_x, mean_x, min_y, max_y or mean_y",
+                ));
+            }
+        }
+
+        // Colliders.
+        for (i, col) in self.collider.iter().enumerate() {
+            let k = |f: &str| format!("collider.{i}.{f}");
+            let (friction, velocity) = match col {
+                ColliderSpec::Plane {
+                    point,
+                    normal,
+                    friction,
+                    velocity,
+                    ..
+                } => {
+                    c.vector(&k("point"), point, dim, &per_axis)?;
+                    c.vector(&k("normal"), normal, dim, &per_axis)?;
+                    if normal.iter().all(|x| *x == 0.0) {
+                        return Err(c.err(
+                            &k("normal"),
+                            "the normal is the zero vector",
+                            "Give a non-zero normal pointing into the free side",
+                        ));
+                    }
+                    (*friction, velocity)
+                }
+                ColliderSpec::Sphere {
+                    center,
+                    radius,
+                    friction,
+                    velocity,
+                    ..
+                } => {
+                    c.vector(&k("center"), center, dim, &per_axis)?;
+                    c.positive(&k("radius"), *radius)?;
+                    (*friction, velocity)
+                }
+            };
+            if !(friction >= 0.0 && friction.is_finite()) {
+                return Err(c.err(
+                    &k("friction"),
+                    format!("{friction} is out of range"),
+                    "friction must be a finite number >= 0",
+                ));
+            }
+            c.vector(&k("velocity"), velocity, dim, &per_axis)?;
+        }
+        Ok(())
+    }
+
+    /// Index of the material named `name`.
+    pub fn material_index(&self, name: &str) -> Option<usize> {
+        self.material.iter().position(|m| m.name == name)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const FILE: &str = "scene.toml";
+
+    const FULL_3D: &str = r#"
+[simulation]
+dim = 3
+precision = "f32"
+h = 0.02
+domain_min = [0.0, 0.0, 0.0]
+domain_max = [1.0, 1.0, 1.0]
+end_time = 0.5
+frame_dt = 0.01
+dt = 1e-4
+cfl = 0.3
+gravity = [0.0, -9.81, 0.0]
+kernel = "quadratic"
+transfer = "flip"
+flip_blend = 0.9
+reference = "eulerian"
+integrator = "explicit"
+boundary = "sticky"
+
+[[material]]
+name = "jelly"
+model = "fixed-corotated"
+density = 1000.0
+youngs_modulus = 1.0e5
+poisson_ratio = 0.4
+
+[[material]]
+name = "rubber"
+model = "neo-hookean"
+density = 1100
+youngs_modulus = 2e6
+poisson_ratio = 0.45
+
+[[body]]
+material = "jelly"
+shape = { type = "sphere", center = [0.3, 0.3, 0.3], radius = 0.1 }
+particles_per_cell = 8
+velocity = [1.0, 0.0, 0.0]
+angular_velocity = [0.0, 1.0, 0.0]
+
+[[body]]
+material = "rubber"
+shape = { type = "box", min = [0.5, 0.1, 0.5], max = [0.7, 0.3, 0.7] }
+
+[[body]]
+material = "rubber"
+shape = { type = "cylinder", center = [0.5, 0.6, 0.5], axis = [0, 1, 0], radius = 0.1, length = 0.2 }
+
+[output]
+format = ["ply"]
+
+[[probe]]
+name = "tip_y"
+quantity = "max_y"
+body = 0
+
+[[collider]]
+type = "plane"
+point = [0.0, 0.1, 0.0]
+normal = [0.0, 1.0, 0.0]
+kind = "sticky"
+friction = 0.2
+velocity = [0.0, 0.0, 0.0]
+
+[[collider]]
+type = "sphere"
+center = [0.5, 0.9, 0.5]
+radius = 0.05
+"#;
+
+    const MIN_2D: &str = r#"
+[simulation]
+dim = 2
+h = 0.01
+domain_min = [0.0, 0.0]
+domain_max = [1.0, 0.5]
+
+[[material]]
+name = "jelly"
+model = "neo-hookean"
+density = 1000.0
+youngs_modulus = 1.0e5
+poisson_ratio = 0.3
+
+[[body]]
+material = "jelly"
+shape = { type = "sphere", center = [0.3, 0.3], radius = 0.1 }
+
+[[probe]]
+name = "left"
+quantity = "min_x"
+body = 0
+
+[[collider]]
+type = "plane"
+point = [0.0, 0.1]
+normal = [0.0, 1.0]
+"#;
+
+    fn parse(text: &str, sets: &[&str]) -> Result<Scene, SceneError> {
+        let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+        parse_scene(text, FILE, &sets)
+    }
+
+    /// Parses FULL_3D with overrides, expects an error containing the file and every needle.
+    fn bad(text: &str, sets: &[&str], needles: &[&str]) {
+        let msg = match parse(text, sets) {
+            Ok(_) => panic!("expected an error for {sets:?}"),
+            Err(e) => e.to_string(),
+        };
+        assert!(msg.starts_with(FILE), "no file name in: {msg}");
+        for n in needles {
+            assert!(msg.contains(n), "`{n}` missing from: {msg}");
+        }
+    }
+
+    #[test]
+    fn full_3d_scene_parses() {
+        let s = parse(FULL_3D, &[]).unwrap();
+        assert_eq!(s.simulation.precision, Precision::F32);
+        assert_eq!(s.simulation.dt, TimeStep::Fixed(1e-4));
+        assert_eq!(s.simulation.kernel, Kernel::Quadratic);
+        assert_eq!(s.simulation.grid, GridKind::Single);
+        assert_eq!(s.simulation.transfer, TransferKind::Flip);
+        assert_eq!(s.simulation.boundary, Boundary::Sticky);
+        assert_eq!(s.material.len(), 2);
+        assert_eq!(s.material[1].density, 1100.0);
+        assert_eq!(s.body.len(), 3);
+        assert_eq!(s.body[1].particles_per_cell, 8);
+        assert_eq!(s.body[1].velocity, vec![0.0; 3]);
+        assert_eq!(s.body[1].angular_velocity, vec![0.0; 3]);
+        assert!(matches!(s.body[2].shape, Shape::Cylinder { .. }));
+        assert_eq!(s.probe[0].quantity, ProbeQuantity::MaxY);
+        assert_eq!(s.probe[0].quantity.axis(), 1);
+        assert_eq!(s.probe[0].quantity.reduction(), Reduction::Max);
+        match &s.collider[1] {
+            ColliderSpec::Sphere {
+                kind,
+                friction,
+                velocity,
+                ..
+            } => {
+                assert_eq!(*kind, Boundary::Slip);
+                assert_eq!(*friction, 0.0);
+                assert_eq!(velocity, &vec![0.0; 3]);
+            }
+            other => panic!("{other:?}"),
+        }
+        assert_eq!(s.material_index("rubber"), Some(1));
+    }
+
+    #[test]
+    fn defaults_are_resolved_2d() {
+        let s = parse(MIN_2D, &[]).unwrap();
+        let sim = &s.simulation;
+        assert_eq!(sim.dim, 2);
+        assert_eq!(sim.precision, Precision::F64);
+        assert_eq!(sim.cfl, 0.4);
+        assert_eq!(sim.gravity, vec![0.0, -9.81]);
+        assert_eq!(sim.kernel, Kernel::Compact);
+        assert_eq!(sim.grid, GridKind::Dual);
+        assert_eq!(sim.transfer, TransferKind::Apic);
+        assert_eq!(sim.flip_blend, 0.95);
+        assert_eq!(sim.reference, ReferenceKind::Eulerian);
+        assert_eq!(sim.adaptive_epsilon, 0.01);
+        assert_eq!(sim.adaptive_eta, 0.01);
+        assert_eq!(sim.integrator, IntegratorKind::Explicit);
+        assert_eq!(sim.boundary, Boundary::Slip);
+        assert_eq!(sim.dt, TimeStep::Auto);
+        assert_eq!(sim.frame_dt, 0.02);
+        assert_eq!(sim.end_time, 1.0);
+        assert_eq!(s.body[0].particles_per_cell, 4);
+        assert_eq!(s.body[0].velocity, vec![0.0, 0.0]);
+        assert_eq!(s.body[0].angular_velocity, vec![0.0]);
+        assert_eq!(s.output.format, vec![OutputFormat::Ply]);
+        match &s.collider[0] {
+            ColliderSpec::Plane { kind, velocity, .. } => {
+                assert_eq!(*kind, Boundary::Slip);
+                assert_eq!(velocity, &vec![0.0, 0.0]);
+            }
+            other => panic!("{other:?}"),
+        }
+    }
+
+    #[test]
+    fn grid_default_follows_kernel() {
+        let s = parse(MIN_2D, &["simulation.kernel=quadratic"]).unwrap();
+        assert_eq!(s.simulation.grid, GridKind::Single);
+        let s = parse(MIN_2D, &["simulation.kernel=compact"]).unwrap();
+        assert_eq!(s.simulation.grid, GridKind::Dual);
+        let s = parse(MIN_2D, &["simulation.grid=single"]).unwrap();
+        assert_eq!(s.simulation.grid, GridKind::Single);
+    }
+
+    #[test]
+    fn overrides_apply() {
+        let s = parse(
+            FULL_3D,
+            &[
+                "simulation.kernel=cubic",
+                "simulation.h=0.025",
+                "body.1.velocity=[0, 1, 0]",
+                "material.0.density=500",
+                "simulation.dt=auto",
+                "output.format=[\"ply\"]",
+                "body.0.shape.radius=0.05",
+            ],
+        )
+        .unwrap();
+        assert_eq!(s.simulation.kernel, Kernel::Cubic);
+        assert_eq!(s.simulation.h, 0.025);
+        assert_eq!(s.body[1].velocity, vec![0.0, 1.0, 0.0]);
+        assert_eq!(s.material[0].density, 500.0);
+        assert_eq!(s.simulation.dt, TimeStep::Auto);
+        match &s.body[0].shape {
+            Shape::Sphere { radius, .. } => assert_eq!(*radius, 0.05),
+            other => panic!("{other:?}"),
+        }
+        // A quoted string and a section that is absent from the file.
+        let s = parse(MIN_2D, &["simulation.transfer=\"pic\"", "output.format=[]"]).unwrap();
+        assert_eq!(s.simulation.transfer, TransferKind::Pic);
+        assert!(s.output.format.is_empty());
+    }
+
+    #[test]
+    fn round_trip_toml_and_json() {
+        for text in [FULL_3D, MIN_2D] {
+            let s = parse(text, &[]).unwrap();
+            let t = toml::to_string(&s).unwrap();
+            assert_eq!(parse(&t, &[]).unwrap(), s, "TOML:\n{t}");
+            let j = serde_json::to_string_pretty(&s).unwrap();
+            let back: Scene = serde_json::from_str(&j).unwrap();
+            assert_eq!(back, s);
+        }
+        let s = parse(MIN_2D, &[]).unwrap();
+        let j = serde_json::to_value(&s).unwrap();
+        assert_eq!(j["simulation"]["dt"], "auto");
+        assert_eq!(j["simulation"]["grid"], "dual");
+        assert_eq!(j["body"][0]["shape"]["type"], "sphere");
+    }
+
+    #[test]
+    fn load_scene_reads_a_file_and_names_missing_ones() {
+        let dir = std::env::temp_dir().join(format!("mpm-cli-scene-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("ok.toml");
+        std::fs::write(&path, MIN_2D).unwrap();
+        let s = load_scene(&path, &["simulation.cfl=0.5".to_string()]).unwrap();
+        assert_eq!(s.simulation.cfl, 0.5);
+        let missing = dir.join("missing.toml");
+        let msg = load_scene(&missing, &[]).unwrap_err().to_string();
+        assert!(msg.contains("missing.toml"), "{msg}");
+        std::fs::write(&path, "[simulation\n").unwrap();
+        let msg = load_scene(&path, &[]).unwrap_err().to_string();
+        assert!(msg.contains("ok.toml") && msg.contains("line 1"), "{msg}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn syntax_error_has_line_and_column() {
+        let text = "[simulation]\ndim = 3\nh = = 0.1\n";
+        let e = parse(text, &[]).unwrap_err();
+        match &e {
+            SceneError::Syntax { line, column, .. } => {
+                assert_eq!(*line, 3);
+                assert!(*column >= 4, "{e}");
+            }
+            other => panic!("{other}"),
+        }
+        assert!(e.to_string().starts_with("scene.toml: line 3, column"));
+    }
+
+    #[test]
+    fn unknown_key_names_path_and_allowed_keys() {
+        let text = FULL_3D.replace("kernel = \"quadratic\"", "kernal = \"quadratic\"");
+        bad(
+            &text,
+            &[],
+            &["simulation.kernal", "unknown field", "kernel", "cfl"],
+        );
+        bad(
+            FULL_3D,
+            &["simulation.kernal=quadratic"],
+            &["simulation.kernal"],
+        );
+        bad(
+            FULL_3D,
+            &["material.1.densty=3"],
+            &["material.1.densty", "density"],
+        );
+        bad(
+            FULL_3D,
+            &["body.0.shape.radiuss=3"],
+            &["body.0.shape", "radiuss", "radius"],
+        );
+        bad(
+            FULL_3D,
+            &["output.formats=[]"],
+            &["output.formats", "format"],
+        );
+        bad(
+            FULL_3D,
+            &["nosuch=1"],
+            &["nosuch", "unknown section", "simulation"],
+        );
+    }
+
+    #[test]
+    fn wrong_type_or_variant_names_path() {
+        bad(
+            FULL_3D,
+            &["simulation.h=fast"],
+            &["simulation.h", "invalid type"],
+        );
+        bad(FULL_3D, &["body.1.velocity=3"], &["body.1.velocity"]);
+        bad(
+            FULL_3D,
+            &["simulation.kernel=quadrtic"],
+            &["simulation.kernel", "compact"],
+        );
+        bad(
+            FULL_3D,
+            &["simulation.dt=never"],
+            &["simulation.dt", "auto"],
+        );
+        let text = MIN_2D.replace("h = 0.01\n", "");
+        bad(&text, &[], &["simulation.h", "missing field"]);
+    }
+
+    #[test]
+    fn override_errors_name_the_key() {
+        bad(
+            FULL_3D,
+            &["material.5.density=1"],
+            &["material.5.density", "out of range", "0 to 1"],
+        );
+        bad(FULL_3D, &["simulation.h"], &["simulation.h", "KEY=VALUE"]);
+        bad(
+            FULL_3D,
+            &["body.x.velocity=[0,0,0]"],
+            &["body.x.velocity", "index"],
+        );
+        bad(
+            MIN_2D,
+            &["collider.1.friction=1"],
+            &["collider.1.friction", "1 entries"],
+        );
+        bad(
+            MIN_2D,
+            &["material.0.density.x=1"],
+            &["material.0.density.x", "not a table"],
+        );
+        let no_probe = MIN_2D.split("[[probe]]").next().unwrap();
+        bad(
+            no_probe,
+            &["probe.0.body=0"],
+            &["probe.0.body", "0 entries"],
+        );
+    }
+
+    #[test]
+    fn simulation_ranges() {
+        bad(
+            FULL_3D,
+            &["simulation.dim=4"],
+            &["simulation.dim", "2 or 3"],
+        );
+        bad(FULL_3D, &["simulation.h=0"], &["simulation.h", "> 0"]);
+        bad(FULL_3D, &["simulation.h=-0.1"], &["simulation.h", "> 0"]);
+        bad(FULL_3D, &["simulation.h=nan"], &["simulation.h", "> 0"]);
+        bad(
+            FULL_3D,
+            &["simulation.domain_max=[1.0, 0.05, 1.0]"],
+            &["simulation.domain_max", "4 cells"],
+        );
+        bad(
+            FULL_3D,
+            &["simulation.domain_min=[0.0, 0.0]"],
+            &["simulation.domain_min", "exactly 3"],
+        );
+        bad(
+            FULL_3D,
+            &["simulation.gravity=[0, -9.81]"],
+            &["simulation.gravity", "exactly 3"],
+        );
+        bad(
+            FULL_3D,
+            &["simulation.end_time=0"],
+            &["simulation.end_time", "> 0"],
+        );
+        bad(
+            FULL_3D,
+            &["simulation.frame_dt=-1"],
+            &["simulation.frame_dt", "> 0"],
+        );
+        bad(FULL_3D, &["simulation.dt=0"], &["simulation.dt", "> 0"]);
+        bad(
+            FULL_3D,
+            &["simulation.cfl=1.5"],
+            &["simulation.cfl", "0 < cfl <= 1"],
+        );
+        bad(
+            FULL_3D,
+            &["simulation.cfl=0"],
+            &["simulation.cfl", "0 < cfl <= 1"],
+        );
+        bad(
+            FULL_3D,
+            &["simulation.flip_blend=2"],
+            &["simulation.flip_blend", "[0, 1]"],
+        );
+    }
+
+    #[test]
+    fn unsupported_features_say_so() {
+        let ns = "not supported yet";
+        bad(
+            FULL_3D,
+            &["simulation.reference=adaptive"],
+            &["simulation.reference", "adaptive", ns],
+        );
+        bad(
+            FULL_3D,
+            &["simulation.reference=total-lagrangian"],
+            &["simulation.reference", ns],
+        );
+        bad(
+            FULL_3D,
+            &["simulation.integrator=implicit"],
+            &["simulation.integrator", ns],
+        );
+        bad(
+            FULL_3D,
+            &["simulation.integrator=semi-implicit"],
+            &["simulation.integrator", ns],
+        );
+        bad(
+            FULL_3D,
+            &["material.0.model=snow"],
+            &["material.0.model", "snow", ns],
+        );
+        bad(
+            FULL_3D,
+            &["material.0.model=j-fluid"],
+            &["material.0.model", ns],
+        );
+        bad(
+            FULL_3D,
+            &["body.0.shape={ type = \"mesh\", path = \"bunny.obj\" }"],
+            &["body.0.shape.type", "mesh", ns],
+        );
+        bad(
+            FULL_3D,
+            &["output.format=[\"ply\", \"vtu\"]"],
+            &["output.format.1", "vtu", ns],
+        );
+    }
+
+    #[test]
+    fn material_ranges() {
+        bad(
+            FULL_3D,
+            &["material.0.density=0"],
+            &["material.0.density", "> 0"],
+        );
+        bad(
+            FULL_3D,
+            &["material.1.youngs_modulus=0"],
+            &["material.1.youngs_modulus", "> 0"],
+        );
+        bad(
+            FULL_3D,
+            &["material.0.poisson_ratio=0.5"],
+            &["material.0.poisson_ratio", "0.5", "-1 <"],
+        );
+        bad(
+            FULL_3D,
+            &["material.0.poisson_ratio=-1"],
+            &["material.0.poisson_ratio", "0.5"],
+        );
+        bad(
+            FULL_3D,
+            &["material.1.name=\"jelly\""],
+            &["material.1.name", "unique"],
+        );
+        bad(
+            FULL_3D,
+            &["material.0.name=\"\""],
+            &["material.0.name", "non-empty"],
+        );
+        bad(
+            FULL_3D,
+            &["material.0.bulk_modulus=1e6"],
+            &[
+                "material.0.bulk_modulus",
+                "fixed-corotated",
+                "poisson_ratio",
+            ],
+        );
+        let text = MIN_2D.replace("youngs_modulus = 1.0e5\n", "");
+        bad(&text, &[], &["material.0.youngs_modulus", "missing"]);
+        let text = MIN_2D.replace("poisson_ratio = 0.3\n", "");
+        bad(&text, &[], &["material.0.poisson_ratio", "missing"]);
+        bad(FULL_3D, &["material=[]"], &["material", "at least one"]);
+    }
+
+    #[test]
+    fn body_errors() {
+        bad(
+            FULL_3D,
+            &["body.1.material=steel"],
+            &["body.1.material", "steel", "jelly, rubber"],
+        );
+        bad(
+            FULL_3D,
+            &["body.0.particles_per_cell=0"],
+            &["body.0.particles_per_cell", "1000"],
+        );
+        bad(
+            FULL_3D,
+            &["body.0.particles_per_cell=2000"],
+            &["body.0.particles_per_cell", "1000"],
+        );
+        bad(
+            FULL_3D,
+            &["body.0.shape.center=[0.05, 0.3, 0.3]"],
+            &[
+                "body.0.shape",
+                "outside the domain",
+                "[0, 0, 0] to [1, 1, 1]",
+                "[-0.05, 0.2, 0.2]",
+            ],
+        );
+        bad(
+            FULL_3D,
+            &["body.0.shape.radius=1e-5"],
+            &["body.0:", "empty"],
+        );
+        bad(
+            FULL_3D,
+            &["body.0.shape.radius=0"],
+            &["body.0.shape.radius", "> 0"],
+        );
+        bad(
+            FULL_3D,
+            &["body.1.shape.min=[0.7, 0.1, 0.5]"],
+            &["body.1:", "empty", "min < max"],
+        );
+        bad(
+            FULL_3D,
+            &["body.0.velocity=[1, 0]"],
+            &["body.0.velocity", "exactly 3"],
+        );
+        bad(
+            FULL_3D,
+            &["body.0.angular_velocity=[1]"],
+            &["body.0.angular_velocity", "exactly 3"],
+        );
+        bad(
+            MIN_2D,
+            &["body.0.angular_velocity=[0, 0, 1]"],
+            &["body.0.angular_velocity", "exactly 1 number ("],
+        );
+        bad(
+            FULL_3D,
+            &["body.2.shape.axis=[0, 0, 0]"],
+            &["body.2.shape.axis", "non-zero"],
+        );
+        bad(
+            MIN_2D,
+            &["body.0.shape={ type = \"cylinder\", center = [0.5, 0.5], axis = [0, 1], radius = 0.1, length = 0.1 }"],
+            &["body.0.shape", "3-D only"],
+        );
+        bad(FULL_3D, &["body=[]"], &["body", "at least one"]);
+    }
+
+    #[test]
+    fn probe_and_collider_errors() {
+        bad(FULL_3D, &["probe.0.body=5"], &["probe.0.body", "0 to 2"]);
+        bad(
+            MIN_2D,
+            &["probe.0.quantity=max_z"],
+            &["probe.0.quantity", "2-D"],
+        );
+        bad(
+            FULL_3D,
+            &["probe.0.quantity=median_y"],
+            &["probe.0.quantity", "max_y"],
+        );
+        bad(
+            FULL_3D,
+            &["probe.0.name=\"a,b\""],
+            &["probe.0.name", "commas"],
+        );
+        bad(
+            FULL_3D,
+            &["probe.0.name=mass"],
+            &["probe.0.name", "standard column"],
+        );
+        bad(
+            FULL_3D,
+            &["collider.0.normal=[0, 0, 0]"],
+            &["collider.0.normal", "non-zero"],
+        );
+        bad(
+            FULL_3D,
+            &["collider.1.radius=0"],
+            &["collider.1.radius", "> 0"],
+        );
+        bad(
+            FULL_3D,
+            &["collider.0.friction=-1"],
+            &["collider.0.friction", ">= 0"],
+        );
+        bad(
+            FULL_3D,
+            &["collider.0.point=[0, 1]"],
+            &["collider.0.point", "exactly 3"],
+        );
+        bad(
+            FULL_3D,
+            &["collider.0.kind=bouncy"],
+            &["collider.0", "sticky"],
+        );
+    }
+}

@@ -1,0 +1,12 @@
+//! Grids of the Material Point Method: the [`GridLayout`] (one grid, or CK-MPM's dual
+//! staggered grids), block-sparse node storage with deterministic parallel scatter
+//! and particle binning ([`BlockSparseGrid`]), and boundary conditions ([`Collider`],
+//! [`domain_walls`]).
+
+pub mod block_sparse_grid;
+pub mod boundary;
+pub mod layout;
+
+pub use block_sparse_grid::{BlockSparseGrid, GatherView, LocalBuffer, BLOCK};
+pub use boundary::{domain_walls, Collider, ColliderShape, ContactKind};
+pub use layout::{Dual, GridLayout, Single};

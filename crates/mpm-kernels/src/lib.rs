@@ -1,0 +1,81 @@
+//! Interpolation kernels of the Material Point Method.
+//!
+//! A [`Kernel`] is a 1-D profile `N(u)`, `u = (x_p − x_i)/h`, used as a tensor
+//! product `w_ip = Π_a N(u_a)`. Each kernel knows its profile, derivative, support,
+//! the number of nodes per axis it touches on one grid and the grid layout it needs
+//! for first-order accuracy (the compact kernel needs the dual grid, see
+//! `methods.md` §2). [`Stencil`] evaluates the tensor-product weights and their
+//! gradients for one particle on one grid.
+
+mod compact;
+mod cubic_bspline;
+mod linear;
+mod quadratic_bspline;
+mod stencil;
+
+pub use compact::Compact;
+pub use cubic_bspline::CubicBSpline;
+pub use linear::Linear;
+pub use quadratic_bspline::QuadraticBSpline;
+pub use stencil::{Stencil, MAX_NODES_PER_AXIS};
+
+use mpm_math::Real;
+
+/// Which grid layout a kernel needs to reproduce linear fields.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum LayoutKind {
+    /// One grid with nodes at `i·h`.
+    Single,
+    /// Two grids offset from each other by `h/2` (CK-MPM).
+    Dual,
+}
+
+/// 1-D weights of one particle on one grid: nodes `base, base+1, …`.
+#[derive(Clone, Copy, Debug)]
+pub struct Weights1d<T> {
+    /// Index of the first node touched.
+    pub base: i32,
+    /// `N(u_j)` for node `base + j` (entries past `NODES_PER_AXIS` are zero).
+    pub w: [T; MAX_NODES_PER_AXIS],
+    /// `dN/du(u_j)`: derivative with respect to the particle position in cell units.
+    pub dw: [T; MAX_NODES_PER_AXIS],
+}
+
+/// A 1-D interpolation profile used as a tensor product.
+pub trait Kernel: Copy + Default + Send + Sync + std::fmt::Debug + 'static {
+    /// Scene-file name ("linear", "quadratic", "cubic", "compact").
+    const NAME: &'static str;
+    /// Nodes per axis touched on one grid.
+    const NODES_PER_AXIS: usize;
+    /// `N(u) = 0` for `|u| ≥ SUPPORT_RADIUS` (in cells).
+    const SUPPORT_RADIUS: f64;
+    /// The layout this kernel needs for linear reproduction.
+    const LAYOUT: LayoutKind;
+
+    /// The profile `N(u)`.
+    fn profile<T: Real>(u: T) -> T;
+    /// Its derivative `N'(u)`.
+    fn derivative<T: Real>(u: T) -> T;
+
+    /// Weights of the nodes around a particle at `xg` in cell units on this grid
+    /// (`xg = x_p/h − grid offset`). The first node is
+    /// `floor(xg − (NODES_PER_AXIS − 2)/2)`, so the stencil is centred on the particle.
+    #[inline(always)]
+    fn weights_1d<T: Real>(xg: T) -> Weights1d<T> {
+        let shift = T::lit((Self::NODES_PER_AXIS as f64 - 2.0) * 0.5);
+        let base = (xg - shift).floor_index();
+        let mut w = [T::zero(); MAX_NODES_PER_AXIS];
+        let mut dw = [T::zero(); MAX_NODES_PER_AXIS];
+        let rel = xg - T::lit(base as f64);
+        for j in 0..Self::NODES_PER_AXIS {
+            let u = rel - T::lit(j as f64);
+            w[j] = Self::profile(u);
+            dw[j] = Self::derivative(u);
+        }
+        Weights1d { base, w, dw }
+    }
+}
+
+#[cfg(test)]
+mod tests;

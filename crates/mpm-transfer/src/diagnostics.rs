@@ -1,0 +1,85 @@
+//! Totals over particles or grid nodes (accumulated in f64, in a fixed order).
+
+use crate::explicit_step::{moment_matrix, stencils};
+use crate::particles::Particles;
+use mpm_constitutive::{ConstitutiveModel, ElasticModel};
+use mpm_grid::GridLayout;
+use mpm_kernels::Kernel;
+use mpm_math::{affine_moment, Real};
+
+/// Mass, momentum, angular momentum (about the origin) and energies.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct Totals {
+    /// Total mass.
+    pub mass: f64,
+    /// Linear momentum (2-D: z = 0).
+    pub momentum: [f64; 3],
+    /// Angular momentum about the origin (2-D: only z).
+    pub angular_momentum: [f64; 3],
+    /// `Σ ½ m |v|²`.
+    pub kinetic_energy: f64,
+    /// `Σ V_p Ψ(F_p)` (particles only).
+    pub elastic_energy: f64,
+    /// Largest speed.
+    pub max_speed: f64,
+}
+
+impl Totals {
+    /// Adds a point mass `m` at `x` with momentum `p`.
+    pub fn add_point(&mut self, m: f64, x: &[f64], p: &[f64]) {
+        self.mass += m;
+        let mut x3 = [0.0; 3];
+        let mut p3 = [0.0; 3];
+        x3[..x.len()].copy_from_slice(x);
+        p3[..p.len()].copy_from_slice(p);
+        for a in 0..3 {
+            self.momentum[a] += p3[a];
+        }
+        self.angular_momentum[0] += x3[1] * p3[2] - x3[2] * p3[1];
+        self.angular_momentum[1] += x3[2] * p3[0] - x3[0] * p3[2];
+        self.angular_momentum[2] += x3[0] * p3[1] - x3[1] * p3[0];
+        if m > 0.0 {
+            let speed2 = p3.iter().map(|c| c * c).sum::<f64>() / (m * m);
+            self.kinetic_energy += 0.5 * m * speed2;
+            self.max_speed = self.max_speed.max(speed2.sqrt());
+        }
+    }
+}
+
+/// Particle totals. With an affine matrix stored, the angular momentum includes the
+/// affine part `m_p ε : (C_p D_p)ᵀ` that APIC transfers to the grid, so it is the
+/// quantity the transfer conserves.
+pub fn particle_totals<T: Real, const D: usize, K: Kernel, L: GridLayout>(
+    particles: &Particles<T, D>,
+    materials: &[ElasticModel<T>],
+    h: T,
+) -> Totals {
+    let gradient_form = K::NODES_PER_AXIS == 2 && L::GRIDS == 1;
+    let mut t = Totals::default();
+    let inv_h = T::one() / h;
+    for p in 0..particles.len() {
+        let m = particles.mass[p];
+        let x: Vec<f64> = particles.x[p].iter().map(|c| c.to_f64()).collect();
+        let mom: Vec<f64> = particles.v[p].iter().map(|c| (*c * m).to_f64()).collect();
+        t.add_point(m.to_f64(), &x, &mom);
+        if particles.stores_affine {
+            // Stored B (or C in gradient form, whose moment is C·D at this position).
+            let b = if gradient_form {
+                let st = stencils::<T, D, K, L>(&particles.x[p], inv_h);
+                particles.affine[p] * moment_matrix::<T, D, L>(&st, h)
+            } else {
+                particles.affine[p]
+            };
+            let l = affine_moment(&b);
+            for a in 0..3 {
+                t.angular_momentum[a] += (l[a] * m).to_f64();
+            }
+        }
+        let model = &materials[particles.material[p] as usize];
+        t.elastic_energy +=
+            (ConstitutiveModel::<T, D>::energy_density(model, &particles.deformation[p])
+                * particles.volume[p])
+                .to_f64();
+    }
+    t
+}

@@ -1,0 +1,399 @@
+//! One explicit symplectic-Euler MPM step, generic over kernel × grid layout
+//! (`methods.md` §3): bin → P2G (mass, momentum with the affine term, stress force)
+//! → grid update (gravity, colliders) → G2P (velocity, affine matrix, `F`, position).
+
+use crate::diagnostics::Totals;
+use crate::particles::Particles;
+use crate::scheme::{Gathered, TransferScheme};
+use crate::StepError;
+use mpm_constitutive::{ConstitutiveModel, ElasticModel};
+use mpm_grid::{BlockSparseGrid, Collider, GridLayout, BLOCK};
+use mpm_kernels::{Kernel, Stencil};
+use mpm_math::{determinant, try_inverse, Matrix, Real, Vector};
+use rayon::prelude::*;
+use std::marker::PhantomData;
+use std::time::Instant;
+
+/// Inputs of one step besides the particles.
+#[derive(Clone, Debug)]
+pub struct StepParams<T: Real, const D: usize> {
+    /// Time step.
+    pub dt: T,
+    /// Grid spacing.
+    pub h: T,
+    /// Time at the start of the step (moves colliders).
+    pub time: T,
+    /// Gravitational acceleration.
+    pub gravity: Vector<T, D>,
+    /// Colliders, domain walls included, applied in order at every node.
+    pub colliders: Vec<Collider<T, D>>,
+    /// Particles are kept inside `[domain_min, domain_max]`.
+    pub domain_min: Vector<T, D>,
+    /// See `domain_min`.
+    pub domain_max: Vector<T, D>,
+}
+
+/// Wall-clock seconds spent in each phase, accumulated over steps.
+#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
+pub struct PhaseTimes {
+    /// Binning and reordering particles by grid block.
+    pub sort: f64,
+    /// Particle-to-grid transfer, stress included.
+    pub p2g: f64,
+    /// Grid velocity update and boundary conditions.
+    pub grid_update: f64,
+    /// Grid-to-particle transfer, `F` and position update.
+    pub g2p: f64,
+}
+
+/// The explicit stepper: owns the grid and its work buffers, reused across steps.
+pub struct ExplicitStepper<T: Real, const D: usize, K: Kernel, L: GridLayout> {
+    /// The block-sparse grid(s).
+    pub grid: BlockSparseGrid<T, D>,
+    /// Accumulated phase times.
+    pub times: PhaseTimes,
+    cells: Vec<[i32; D]>,
+    _stencil: PhantomData<(K, L)>,
+}
+
+impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Default for ExplicitStepper<T, D, K, L> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// The stencils of one particle on every grid of layout `L` (at most two).
+#[inline(always)]
+pub fn stencils<T: Real, const D: usize, K: Kernel, L: GridLayout>(
+    x: &Vector<T, D>,
+    inv_h: T,
+) -> [Stencil<T, D>; 2] {
+    let s0 = Stencil::new::<K>(x, inv_h, T::lit(L::offset(0)));
+    let s1 = if L::GRIDS > 1 {
+        Stencil::new::<K>(x, inv_h, T::lit(L::offset(1)))
+    } else {
+        s0
+    };
+    [s0, s1]
+}
+
+/// `D_p = (1/GRIDS) Σ_k Σ_i w r rᵀ` from a particle's stencils.
+#[inline(always)]
+pub fn moment_matrix<T: Real, const D: usize, L: GridLayout>(
+    st: &[Stencil<T, D>; 2],
+    h: T,
+) -> Matrix<T, D> {
+    let mut d = Matrix::<T, D>::zeros();
+    for s in st.iter().take(L::GRIDS) {
+        for q in 0..s.node_count() {
+            let j = s.local(q);
+            let r = s.offset_to_node(&j, h);
+            d += r * r.transpose() * s.weight(&j);
+        }
+    }
+    d * T::lit(L::gather_weight())
+}
+
+impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K, L> {
+    /// A stepper with an empty grid.
+    pub fn new() -> Self {
+        ExplicitStepper {
+            grid: BlockSparseGrid::new(L::GRIDS),
+            times: PhaseTimes::default(),
+            cells: Vec::new(),
+            _stencil: PhantomData,
+        }
+    }
+
+    /// True when APIC/MLS must use the gradient form (two nodes per axis on one grid:
+    /// `D_p` is singular on nodes), see [`TransferScheme`].
+    pub const fn gradient_form() -> bool {
+        K::NODES_PER_AXIS == 2 && L::GRIDS == 1
+    }
+
+    /// Nodes per axis of a home block's padded scatter buffer.
+    pub const fn buffer_extent() -> usize {
+        BLOCK as usize + (L::GRIDS - 1) + (K::NODES_PER_AXIS - 1)
+    }
+
+    /// One full step.
+    pub fn step<S: TransferScheme<T, D>>(
+        &mut self,
+        particles: &mut Particles<T, D>,
+        materials: &[ElasticModel<T>],
+        scheme: &S,
+        params: &StepParams<T, D>,
+    ) -> Result<(), StepError> {
+        let t0 = Instant::now();
+        self.bin(particles, params.h);
+        let t1 = Instant::now();
+        self.particle_to_grid(particles, materials, scheme, params.dt, params.h);
+        let t2 = Instant::now();
+        self.grid_update(params);
+        let t3 = Instant::now();
+        let result = self.grid_to_particle(particles, materials, scheme, params);
+        let t4 = Instant::now();
+        self.times.sort += (t1 - t0).as_secs_f64();
+        self.times.p2g += (t2 - t1).as_secs_f64();
+        self.times.grid_update += (t3 - t2).as_secs_f64();
+        self.times.g2p += (t4 - t3).as_secs_f64();
+        result
+    }
+
+    /// Sorts particles by the grid block of their first stencil node on grid 0.
+    pub fn bin(&mut self, particles: &mut Particles<T, D>, h: T) {
+        let inv_h = T::one() / h;
+        let off = T::lit(L::offset(0));
+        self.cells.clear();
+        particles
+            .x
+            .par_iter()
+            .map(|x| {
+                let mut c = [0i32; D];
+                for a in 0..D {
+                    c[a] = K::weights_1d(x[a] * inv_h - off).base;
+                }
+                c
+            })
+            .collect_into_vec(&mut self.cells);
+        let order = self.grid.bin(&self.cells);
+        particles.reorder(&order);
+    }
+
+    /// P2G: `m_i = Σ w m_p`, `m_i v_i = Σ w m_p (v_p + C_p r)` and the stress impulse
+    /// `Δt f_i = −Δt V_p τ_p ∇w` (MLS: `−Δt V_p τ_p D_p⁻¹ r w`), on every grid.
+    /// Requires [`Self::bin`] first.
+    pub fn particle_to_grid<S: TransferScheme<T, D>>(
+        &mut self,
+        particles: &Particles<T, D>,
+        materials: &[ElasticModel<T>],
+        scheme: &S,
+        dt: T,
+        h: T,
+    ) {
+        let inv_h = T::one() / h;
+        let gradient_form = Self::gradient_form();
+        let affine = scheme.stores_affine();
+        let mls = scheme.mls_force() && !gradient_form;
+        let need_moment = (affine || mls) && !gradient_form;
+        let separate = scheme.needs(gradient_form).old_velocity;
+        let p = particles;
+        self.grid
+            .scatter(Self::buffer_extent(), separate, |_home, range, buf| {
+                for i in range {
+                    let x = p.x[i];
+                    let st = stencils::<T, D, K, L>(&x, inv_h);
+                    let d_inv = if need_moment {
+                        try_inverse(&moment_matrix::<T, D, L>(&st, h))
+                    } else {
+                        None
+                    };
+                    let c = scheme.p2g_affine(p.affine.get(i), d_inv.as_ref());
+                    let model = &materials[p.material[i] as usize];
+                    let stress = model.kirchhoff_stress(&p.deformation[i]) * (-p.volume[i] * dt);
+                    let mls_stress = match (mls, d_inv) {
+                        (true, Some(di)) => Some(stress * di),
+                        _ => None,
+                    };
+                    let m = p.mass[i];
+                    let v = p.v[i];
+                    for (k, s) in st.iter().enumerate().take(L::GRIDS) {
+                        for q in 0..s.node_count() {
+                            let j = s.local(q);
+                            let (w, g) = s.weight_and_gradient(&j);
+                            let r = s.offset_to_node(&j, h);
+                            let momentum = (v + c * r) * (w * m);
+                            let impulse = match &mls_stress {
+                                Some(ms) => ms * r * w,
+                                None => stress * g,
+                            };
+                            buf.add(k, &s.node(&j), w * m, &momentum, &impulse);
+                        }
+                    }
+                }
+            });
+    }
+
+    /// Grid update: `v_i = (m_i v_i + Δt f_i)/m_i + Δt g`, then the colliders at the
+    /// node's position.
+    pub fn grid_update(&mut self, params: &StepParams<T, D>) {
+        let dt = params.dt;
+        let h = params.h;
+        let g = params.gravity;
+        let t = params.time;
+        let colliders = &params.colliders;
+        self.grid.update(|k, node, m, p| {
+            let mut v = p / m + g * dt;
+            if !colliders.is_empty() {
+                let off = T::lit(L::offset(k));
+                let x = Vector::<T, D>::from_fn(|a, _| (T::lit(node[a] as f64) + off) * h);
+                for c in colliders {
+                    v = c.apply(&x, v, t);
+                }
+            }
+            v
+        });
+    }
+
+    /// G2P: gathers (averaged over the grids), updates velocity, affine matrix, `F`
+    /// and position; reports the first (lowest id) particle whose state is not finite
+    /// or not admissible for its model.
+    pub fn grid_to_particle<S: TransferScheme<T, D>>(
+        &mut self,
+        particles: &mut Particles<T, D>,
+        materials: &[ElasticModel<T>],
+        scheme: &S,
+        params: &StepParams<T, D>,
+    ) -> Result<(), StepError> {
+        let h = params.h;
+        let dt = params.dt;
+        let inv_h = T::one() / h;
+        let gw = T::lit(L::gather_weight());
+        let gradient_form = Self::gradient_form();
+        let needs = scheme.needs(gradient_form);
+        let grid = &self.grid;
+        let homes = grid.home_of_sorted();
+        let (lo, hi) = (params.domain_min, params.domain_max);
+        let Particles {
+            id,
+            x,
+            v,
+            material,
+            deformation,
+            affine,
+            stores_affine,
+            ..
+        } = particles;
+        let (id, material) = (&*id, &*material);
+
+        let one = |p: usize,
+                   xp: &mut Vector<T, D>,
+                   vp: &mut Vector<T, D>,
+                   fp: &mut Matrix<T, D>,
+                   ap: Option<&mut Matrix<T, D>>|
+         -> Option<StepError> {
+            let view = grid.gather_view(homes[p] as usize);
+            let st = stencils::<T, D, K, L>(xp, inv_h);
+            let mut g = Gathered {
+                velocity: Vector::<T, D>::zeros(),
+                velocity_change: Vector::<T, D>::zeros(),
+                affine_moment: Matrix::<T, D>::zeros(),
+                velocity_gradient: Matrix::<T, D>::zeros(),
+                moment_matrix: Matrix::<T, D>::zeros(),
+            };
+            for (k, s) in st.iter().enumerate().take(L::GRIDS) {
+                for q in 0..s.node_count() {
+                    let j = s.local(q);
+                    let node = s.node(&j);
+                    let vi = view.velocity(k, &node);
+                    let (w, grad) = s.weight_and_gradient(&j);
+                    g.velocity += vi * w;
+                    if needs.old_velocity {
+                        g.velocity_change += (vi - view.velocity_old(k, &node)) * w;
+                    }
+                    if needs.affine_moment || needs.moment_matrix {
+                        let r = s.offset_to_node(&j, h);
+                        if needs.affine_moment {
+                            g.affine_moment += vi * w * r.transpose();
+                        }
+                        if needs.moment_matrix {
+                            g.moment_matrix += r * w * r.transpose();
+                        }
+                    }
+                    if needs.velocity_gradient {
+                        g.velocity_gradient += vi * grad.transpose();
+                    }
+                }
+            }
+            g.velocity *= gw;
+            g.velocity_change *= gw;
+            g.affine_moment *= gw;
+            g.velocity_gradient *= gw;
+            g.moment_matrix *= gw;
+            let up = scheme.update(vp, &g, gradient_form);
+            *vp = up.velocity;
+            *fp = (Matrix::<T, D>::identity() + up.velocity_gradient * dt) * *fp;
+            let mut xn = *xp + up.velocity * dt;
+            for a in 0..D {
+                // Last safeguard: the walls act one cell inside the domain.
+                xn[a] = xn[a].clamp(lo[a], hi[a]);
+            }
+            *xp = xn;
+            if let (Some(a), Some(b)) = (ap, up.affine) {
+                *a = b;
+            }
+            let pid = id[p];
+            if !up.velocity.iter().all(|c| c.is_finite_real()) {
+                return Some(StepError::NonFinite {
+                    particle: pid,
+                    quantity: "velocity",
+                });
+            }
+            if !xn.iter().all(|c| c.is_finite_real()) {
+                return Some(StepError::NonFinite {
+                    particle: pid,
+                    quantity: "position",
+                });
+            }
+            if !fp.iter().all(|c| c.is_finite_real()) {
+                return Some(StepError::NonFinite {
+                    particle: pid,
+                    quantity: "deformation gradient",
+                });
+            }
+            let model = &materials[material[p] as usize];
+            if !ConstitutiveModel::<T, D>::is_admissible(model, fp) {
+                return Some(StepError::Inverted {
+                    particle: pid,
+                    model: ConstitutiveModel::<T, D>::name(model),
+                    det: determinant(fp).to_f64(),
+                });
+            }
+            None
+        };
+
+        let first_error = if *stores_affine {
+            (
+                x.par_iter_mut(),
+                v.par_iter_mut(),
+                deformation.par_iter_mut(),
+                affine.par_iter_mut(),
+            )
+                .into_par_iter()
+                .enumerate()
+                .filter_map(|(p, (xp, vp, fp, ap))| one(p, xp, vp, fp, Some(ap)))
+                .min_by_key(|e| e.particle())
+        } else {
+            (
+                x.par_iter_mut(),
+                v.par_iter_mut(),
+                deformation.par_iter_mut(),
+            )
+                .into_par_iter()
+                .enumerate()
+                .filter_map(|(p, (xp, vp, fp))| one(p, xp, vp, fp, None))
+                .min_by_key(|e| e.particle())
+        };
+        match first_error {
+            Some(e) => Err(e),
+            None => Ok(()),
+        }
+    }
+
+    /// Grid totals after the grid update (the `1/GRIDS` average included): mass,
+    /// momentum `Σ m_i v_i` and angular momentum `Σ x_i × m_i v_i` about the origin.
+    pub fn grid_totals(&self, h: T) -> Totals {
+        let gw = L::gather_weight();
+        let mut t = Totals::default();
+        let hf = h.to_f64();
+        self.grid.for_each_node(|k, node, m, _, v| {
+            let m = m.to_f64() * gw;
+            let x: Vec<f64> = (0..D)
+                .map(|a| (node[a] as f64 + L::offset(k)) * hf)
+                .collect();
+            let p: Vec<f64> = (0..D).map(|a| v[a].to_f64() * m).collect();
+            t.add_point(m, &x, &p);
+        });
+        t
+    }
+}

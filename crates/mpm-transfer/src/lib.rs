@@ -1,0 +1,62 @@
+//! Particle–grid transfers of the Material Point Method and the explicit step.
+//!
+//! [`TransferScheme`] is implemented by [`Pic`], [`Apic`], [`Mls`] and the FLIP/PIC
+//! blend [`Flip`]; [`Transfer`] is the closed enum a scene selects.
+//! [`ExplicitStepper`] runs one symplectic-Euler step generic over a
+//! [`Kernel`](mpm_kernels::Kernel) × [`GridLayout`](mpm_grid::GridLayout), in parallel
+//! and deterministically (no atomics; the grid reduction has a fixed order; particle
+//! order is a stable sort), so 1 and N threads give bit-identical results.
+
+mod apic;
+pub mod diagnostics;
+pub mod explicit_step;
+mod flip;
+mod mls;
+pub mod particles;
+mod pic;
+pub mod scheme;
+pub mod timestep;
+
+pub use apic::Apic;
+pub use diagnostics::{particle_totals, Totals};
+pub use explicit_step::{ExplicitStepper, PhaseTimes, StepParams};
+pub use flip::Flip;
+pub use mls::Mls;
+pub use particles::Particles;
+pub use pic::Pic;
+pub use scheme::{Transfer, TransferScheme};
+pub use timestep::{cfl_time_step, max_speed};
+
+/// A step that produced a state the simulation cannot continue from.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum StepError {
+    /// A particle quantity became NaN or infinite.
+    #[error("particle {particle}: {quantity} is not finite (NaN or infinity)")]
+    NonFinite {
+        /// Particle id (creation index).
+        particle: u32,
+        /// Which quantity.
+        quantity: &'static str,
+    },
+    /// A particle's deformation left the set its model can handle.
+    #[error("particle {particle}: inverted element (det F = {det:e}) that the {model} model cannot handle")]
+    Inverted {
+        /// Particle id.
+        particle: u32,
+        /// Model name.
+        model: &'static str,
+        /// det F.
+        det: f64,
+    },
+}
+
+impl StepError {
+    /// The particle concerned.
+    pub fn particle(&self) -> u32 {
+        match self {
+            StepError::NonFinite { particle, .. } | StepError::Inverted { particle, .. } => {
+                *particle
+            }
+        }
+    }
+}

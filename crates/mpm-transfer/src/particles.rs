@@ -1,0 +1,110 @@
+//! Particles as a structure of arrays holding only what the scene's models and
+//! transfer scheme need.
+
+use mpm_math::{Matrix, Real, Vector};
+use rayon::prelude::*;
+
+/// Particle state (structure of arrays). Particles are kept sorted by grid block for
+/// locality; `id` is each particle's original index, stable for output.
+#[derive(Clone, Debug, Default)]
+pub struct Particles<T: Real, const D: usize> {
+    /// Original index (creation order).
+    pub id: Vec<u32>,
+    /// Position.
+    pub x: Vec<Vector<T, D>>,
+    /// Velocity.
+    pub v: Vec<Vector<T, D>>,
+    /// Mass.
+    pub mass: Vec<T>,
+    /// Initial volume `V_p⁰`.
+    pub volume: Vec<T>,
+    /// Index into the material table.
+    pub material: Vec<u16>,
+    /// Deformation gradient `F_p`.
+    pub deformation: Vec<Matrix<T, D>>,
+    /// Affine matrix stored by APIC/MLS (`B_p`, or `C_p` for two-node single-grid
+    /// stencils); empty for PIC and FLIP.
+    pub affine: Vec<Matrix<T, D>>,
+    /// Whether `affine` is kept (APIC/MLS).
+    pub stores_affine: bool,
+}
+
+impl<T: Real, const D: usize> Particles<T, D> {
+    /// An empty set; `with_affine` reserves the APIC/MLS matrix.
+    pub fn new(stores_affine: bool) -> Self {
+        Particles {
+            stores_affine,
+            ..Default::default()
+        }
+    }
+
+    /// Number of particles.
+    pub fn len(&self) -> usize {
+        self.x.len()
+    }
+    /// `true` when there are no particles.
+    pub fn is_empty(&self) -> bool {
+        self.x.is_empty()
+    }
+
+    /// Appends a particle at rest in its reference configuration (`F = I`).
+    pub fn push(&mut self, x: Vector<T, D>, v: Vector<T, D>, mass: T, volume: T, material: u16) {
+        self.id.push(self.x.len() as u32);
+        self.x.push(x);
+        self.v.push(v);
+        self.mass.push(mass);
+        self.volume.push(volume);
+        self.material.push(material);
+        self.deformation.push(Matrix::<T, D>::identity());
+        if self.stores_affine {
+            self.affine.push(Matrix::<T, D>::zeros());
+        }
+    }
+
+    /// Bytes of state per particle (the arrays this scene actually holds).
+    pub fn bytes_per_particle(&self) -> usize {
+        use std::mem::size_of;
+        let mut b = size_of::<u32>()
+            + 2 * size_of::<Vector<T, D>>()
+            + 2 * size_of::<T>()
+            + size_of::<u16>()
+            + size_of::<Matrix<T, D>>();
+        if self.stores_affine {
+            b += size_of::<Matrix<T, D>>();
+        }
+        b
+    }
+
+    /// Applies the permutation `order` (new position → old index) to every array.
+    /// Does nothing when `order` is the identity.
+    pub fn reorder(&mut self, order: &[u32]) {
+        debug_assert_eq!(order.len(), self.len());
+        if order.par_iter().enumerate().all(|(i, &o)| i as u32 == o) {
+            return;
+        }
+        fn permute<X: Copy + Send + Sync>(v: &mut Vec<X>, order: &[u32]) {
+            if v.is_empty() {
+                return;
+            }
+            let next: Vec<X> = order.par_iter().map(|&o| v[o as usize]).collect();
+            *v = next;
+        }
+        permute(&mut self.id, order);
+        permute(&mut self.x, order);
+        permute(&mut self.v, order);
+        permute(&mut self.mass, order);
+        permute(&mut self.volume, order);
+        permute(&mut self.material, order);
+        permute(&mut self.deformation, order);
+        permute(&mut self.affine, order);
+    }
+
+    /// Position of each particle in the arrays, indexed by `id`.
+    pub fn index_by_id(&self) -> Vec<u32> {
+        let mut idx = vec![0u32; self.len()];
+        for (i, &id) in self.id.iter().enumerate() {
+            idx[id as usize] = i as u32;
+        }
+        idx
+    }
+}

@@ -1,0 +1,146 @@
+//! The [`TransferScheme`] trait: how particle velocities, affine matrices and the
+//! velocity gradient that updates `F` are formed from the grid (G2P), and the affine
+//! velocity a particle carries back to the grid (P2G).
+
+use mpm_math::{Matrix, Real, Vector};
+
+/// Grid quantities gathered at one particle (every sum already averaged over the
+/// grids of the layout with weight `1/GRIDS`). `r = x_i − x_p` at the pre-advection
+/// position.
+#[derive(Clone, Copy, Debug)]
+pub struct Gathered<T: Real, const D: usize> {
+    /// `Σ w v_i`.
+    pub velocity: Vector<T, D>,
+    /// `Σ w (v_i − v_i^old)` (FLIP only).
+    pub velocity_change: Vector<T, D>,
+    /// `B = Σ w v_i rᵀ` (APIC/MLS).
+    pub affine_moment: Matrix<T, D>,
+    /// `Σ v_i ∇wᵀ`.
+    pub velocity_gradient: Matrix<T, D>,
+    /// `D = Σ w r rᵀ` (MLS: forms `C = B D⁻¹` for the F update).
+    pub moment_matrix: Matrix<T, D>,
+}
+
+/// What the G2P gather must compute for a scheme.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Needs {
+    /// `Σ v_i ∇wᵀ`.
+    pub velocity_gradient: bool,
+    /// `B`.
+    pub affine_moment: bool,
+    /// `D`.
+    pub moment_matrix: bool,
+    /// Pre-update grid velocities.
+    pub old_velocity: bool,
+}
+
+/// A particle's update from its gathered grid quantities.
+#[derive(Clone, Copy, Debug)]
+pub struct ParticleUpdate<T: Real, const D: usize> {
+    /// New velocity.
+    pub velocity: Vector<T, D>,
+    /// Velocity gradient `L` used in `F ← (I + Δt L) F`.
+    pub velocity_gradient: Matrix<T, D>,
+    /// Affine matrix to store (APIC/MLS).
+    pub affine: Option<Matrix<T, D>>,
+}
+
+/// A particle–grid transfer scheme.
+///
+/// `gradient_form` is true for stencils of two nodes per axis on a single grid
+/// (linear kernel, compact kernel without its dual grid): there `D_p` is singular when
+/// a particle sits on a node, so APIC/MLS store `C_p = Σ v_i ∇wᵀ` directly (Jiang et
+/// al. 2015 §5.3; for the linear kernel `w D⁻¹ r = ∇w` exactly) instead of `B_p`.
+pub trait TransferScheme<T: Real, const D: usize>: Send + Sync {
+    /// Scene-file name.
+    fn name(&self) -> &'static str;
+    /// Whether particles keep an affine matrix between steps.
+    fn stores_affine(&self) -> bool;
+    /// Whether P2G's force uses the MLS gradient `D⁻¹ r w` instead of `∇w`.
+    fn mls_force(&self) -> bool;
+    /// What G2P gathers.
+    fn needs(&self, gradient_form: bool) -> Needs;
+    /// The affine velocity `C_p` carried to the grid in P2G: from the stored matrix
+    /// and `D_p⁻¹` at the P2G position (`None` in gradient form).
+    fn p2g_affine(
+        &self,
+        stored: Option<&Matrix<T, D>>,
+        moment_inverse: Option<&Matrix<T, D>>,
+    ) -> Matrix<T, D>;
+    /// The particle update from its gather.
+    fn update(
+        &self,
+        velocity: &Vector<T, D>,
+        gathered: &Gathered<T, D>,
+        gradient_form: bool,
+    ) -> ParticleUpdate<T, D>;
+}
+
+/// APIC/MLS P2G affine velocity: `C = B D⁻¹` (or the stored `C` in gradient form).
+#[inline(always)]
+pub(crate) fn affine_from_stored<T: Real, const D: usize>(
+    stored: Option<&Matrix<T, D>>,
+    moment_inverse: Option<&Matrix<T, D>>,
+) -> Matrix<T, D> {
+    match (stored, moment_inverse) {
+        (Some(b), Some(d_inv)) => b * d_inv,
+        (Some(c), None) => *c,
+        _ => Matrix::<T, D>::zeros(),
+    }
+}
+
+/// The closed set of schemes a scene can name, dispatched per particle by `match`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Transfer<T: Real> {
+    /// Particle-in-cell.
+    Pic(crate::Pic),
+    /// Affine particle-in-cell.
+    Apic(crate::Apic),
+    /// Moving least squares MPM.
+    Mls(crate::Mls),
+    /// FLIP/PIC blend.
+    Flip(crate::Flip<T>),
+}
+
+macro_rules! dispatch {
+    ($self:ident, $s:ident => $e:expr) => {
+        match $self {
+            Transfer::Pic($s) => $e,
+            Transfer::Apic($s) => $e,
+            Transfer::Mls($s) => $e,
+            Transfer::Flip($s) => $e,
+        }
+    };
+}
+
+impl<T: Real, const D: usize> TransferScheme<T, D> for Transfer<T> {
+    fn name(&self) -> &'static str {
+        dispatch!(self, s => TransferScheme::<T, D>::name(s))
+    }
+    fn stores_affine(&self) -> bool {
+        dispatch!(self, s => TransferScheme::<T, D>::stores_affine(s))
+    }
+    fn mls_force(&self) -> bool {
+        dispatch!(self, s => TransferScheme::<T, D>::mls_force(s))
+    }
+    fn needs(&self, gradient_form: bool) -> Needs {
+        dispatch!(self, s => TransferScheme::<T, D>::needs(s, gradient_form))
+    }
+    #[inline(always)]
+    fn p2g_affine(
+        &self,
+        stored: Option<&Matrix<T, D>>,
+        moment_inverse: Option<&Matrix<T, D>>,
+    ) -> Matrix<T, D> {
+        dispatch!(self, s => s.p2g_affine(stored, moment_inverse))
+    }
+    #[inline(always)]
+    fn update(
+        &self,
+        velocity: &Vector<T, D>,
+        gathered: &Gathered<T, D>,
+        gradient_form: bool,
+    ) -> ParticleUpdate<T, D> {
+        dispatch!(self, s => s.update(velocity, gathered, gradient_form))
+    }
+}
