@@ -45,6 +45,18 @@ enum Command {
     },
 }
 
+mod erased {
+    /// Serialises a value to JSON through a trait object.
+    pub trait Ser {
+        fn to_json(&self) -> serde_json::Value;
+    }
+    impl<T: serde::Serialize> Ser for T {
+        fn to_json(&self) -> serde_json::Value {
+            serde_json::to_value(self).unwrap_or(serde_json::Value::Null)
+        }
+    }
+}
+
 const DEMO: &str = include_str!("../../../scenes/demo.toml");
 
 fn load(scene: Option<&PathBuf>, set: &[String]) -> Result<(Scene, String, String), SceneError> {
@@ -81,9 +93,18 @@ fn main() -> ExitCode {
                             .len()
                     })
                     .sum();
+                // Scene-file spelling of the enums.
+                let name = |v: serde_json::Value| v.as_str().unwrap_or("?").to_string();
+                let json = |x: &dyn erased::Ser| name(x.to_json());
                 println!(
-                    "{origin}: OK — {}-D {:?}, kernel {:?} on a {:?} grid, {:?} transfer, {} bodies, {particles} particles, end_time {} s",
-                    s.dim, s.precision, s.kernel, s.grid, s.transfer, scene.body.len(), s.end_time
+                    "{origin}: OK: {}-D {}, kernel {} on a {} grid, {} transfer, {} bodies, {particles} particles, end_time {} s",
+                    s.dim,
+                    json(&s.precision),
+                    json(&s.kernel),
+                    json(&s.grid),
+                    json(&s.transfer),
+                    scene.body.len(),
+                    s.end_time
                 );
                 ExitCode::SUCCESS
             }

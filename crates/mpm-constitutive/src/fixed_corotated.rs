@@ -125,6 +125,6 @@ impl<T: Real, const D: usize> ConstitutiveModel<T, D> for FixedCorotated<T> {
     }
 
     fn name(&self) -> &'static str {
-        "fixed_corotated"
+        "fixed-corotated"
     }
 }

@@ -87,6 +87,6 @@ impl<T: Real, const D: usize> ConstitutiveModel<T, D> for NeoHookean<T> {
     }
 
     fn name(&self) -> &'static str {
-        "neo_hookean"
+        "neo-hookean"
     }
 }

@@ -315,8 +315,8 @@ fn f32_matches_f64() {
 fn enum_dispatch_names_and_wave_speed() {
     let fc = fixed_corotated();
     let nh = neo_hookean();
-    assert_eq!(ConstitutiveModel::<f64, 3>::name(&fc), "fixed_corotated");
-    assert_eq!(ConstitutiveModel::<f64, 2>::name(&nh), "neo_hookean");
+    assert_eq!(ConstitutiveModel::<f64, 3>::name(&fc), "fixed-corotated");
+    assert_eq!(ConstitutiveModel::<f64, 2>::name(&nh), "neo-hookean");
     let l = lame();
     let want = ((l.lambda + 2.0 * l.mu) / 1000.0).sqrt();
     for m in [fc, nh] {

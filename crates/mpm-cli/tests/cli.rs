@@ -1,0 +1,254 @@
+//! The `mpm` binary as a user meets it: bad input gives a clear error naming the file
+//! and the key with a non-zero exit; a run writes complete outputs; a run that blows
+//! up stops with the step, the particle and the quantity, keeping earlier frames.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+const SMALL_2D: &str = r#"
+[simulation]
+dim = 2
+precision = "f64"
+h = 0.02
+domain_min = [0.0, 0.0]
+domain_max = [1.0, 1.0]
+end_time = 0.1
+frame_dt = 0.02
+kernel = "compact"
+transfer = "apic"
+
+[[material]]
+name = "jelly"
+model = "fixed-corotated"
+density = 1000.0
+youngs_modulus = 1.0e4
+poisson_ratio = 0.3
+
+[[body]]
+material = "jelly"
+shape = { type = "box", min = [0.4, 0.3], max = [0.6, 0.5] }
+velocity = [0.0, -1.0]
+"#;
+
+fn mpm(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_mpm"))
+        .args(args)
+        .output()
+        .expect("run mpm")
+}
+
+fn write_scene(dir: &Path, name: &str, text: &str) -> PathBuf {
+    let p = dir.join(name);
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+/// Runs `mpm validate` on the small scene with one edit; returns (success, stderr).
+fn validate_with(edit: &dyn Fn(&str) -> String) -> (bool, String) {
+    let dir = tempfile::tempdir().unwrap();
+    let path = write_scene(dir.path(), "bad_scene.toml", &edit(SMALL_2D));
+    let out = mpm(&["validate", path.to_str().unwrap()]);
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+fn assert_rejected(edit: &dyn Fn(&str) -> String, must_contain: &[&str]) {
+    let (ok, err) = validate_with(edit);
+    assert!(!ok, "accepted a bad scene; stderr: {err}");
+    assert!(err.contains("bad_scene.toml"), "no file name in: {err}");
+    for m in must_contain {
+        assert!(err.contains(m), "expected {m:?} in: {err}");
+    }
+}
+
+#[test]
+fn valid_scene_validates() {
+    let (ok, err) = validate_with(&|s| s.to_string());
+    assert!(ok, "{err}");
+}
+
+#[test]
+fn unknown_key_is_named() {
+    assert_rejected(
+        &|s| s.replace("kernel =", "kernal ="),
+        &["simulation.kernal"],
+    );
+}
+
+#[test]
+fn wrong_type_is_named() {
+    assert_rejected(
+        &|s| s.replace("h = 0.02", "h = \"fine\""),
+        &["simulation.h"],
+    );
+}
+
+#[test]
+fn impossible_values_name_key_and_range() {
+    assert_rejected(
+        &|s| s.replace("density = 1000.0", "density = -5.0"),
+        &["density", "> 0"],
+    );
+    assert_rejected(
+        &|s| s.replace("poisson_ratio = 0.3", "poisson_ratio = 0.5"),
+        &["poisson_ratio", "0.5"],
+    );
+    assert_rejected(&|s| s.replace("h = 0.02", "h = 0.0"), &["simulation.h"]);
+    assert_rejected(
+        &|s| s.replace("max = [0.6, 0.5]", "max = [1.6, 0.5]"),
+        &["body.0.shape", "domain"],
+    );
+    assert_rejected(
+        &|s| s.replace("max = [0.6, 0.5]", "max = [0.4, 0.3]"),
+        &["body.0"],
+    );
+}
+
+#[test]
+fn later_features_say_not_supported_yet() {
+    for edit in ["reference = \"adaptive\"", "integrator = \"semi-implicit\""] {
+        assert_rejected(
+            &|s| {
+                s.replace(
+                    "transfer = \"apic\"",
+                    &format!("transfer = \"apic\"\n{edit}"),
+                )
+            },
+            &["not supported yet"],
+        );
+    }
+    assert_rejected(
+        &|s| s.replace("model = \"fixed-corotated\"", "model = \"nacc\""),
+        &["not supported yet", "nacc"],
+    );
+}
+
+#[test]
+fn bad_override_and_missing_file_fail() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = write_scene(dir.path(), "s.toml", SMALL_2D);
+    let out = mpm(&[
+        "validate",
+        path.to_str().unwrap(),
+        "--set",
+        "simulation.cfl=7",
+    ]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("simulation.cfl"));
+    let out = mpm(&["run", dir.path().join("nope.toml").to_str().unwrap()]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("nope.toml"));
+}
+
+#[test]
+fn run_writes_frames_stats_and_summary() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = write_scene(dir.path(), "s.toml", SMALL_2D);
+    let out_dir = dir.path().join("out");
+    let out = mpm(&[
+        "run",
+        path.to_str().unwrap(),
+        "--out",
+        out_dir.to_str().unwrap(),
+        "--threads",
+        "2",
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    // end_time 0.1 / frame_dt 0.02: frames 0..=5.
+    let stats = std::fs::read_to_string(out_dir.join("stats.csv")).unwrap();
+    let lines: Vec<&str> = stats.lines().collect();
+    assert_eq!(lines.len(), 7);
+    assert!(lines[0].starts_with(
+        "frame,time,steps,wall_seconds,particles,mass,kinetic_energy,elastic_energy,momentum_x"
+    ));
+    let last: Vec<&str> = lines[6].split(',').collect();
+    assert_eq!(last[0], "5");
+    assert!(
+        (last[1].parse::<f64>().unwrap() - 0.1).abs() < 1e-12,
+        "time lands on the frame"
+    );
+    for f in 0..=5 {
+        let bytes = std::fs::read(out_dir.join(format!("frames/frame_{f:05}.ply"))).unwrap();
+        let pts = mpm_cli::output::read_ply_positions(&bytes).unwrap();
+        assert_eq!(pts.len(), 400, "10×10 cells × 4 particles");
+    }
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out_dir.join("summary.json")).unwrap())
+            .unwrap();
+    assert_eq!(summary["status"], "completed");
+    assert_eq!(summary["particles"], 400);
+    assert_eq!(summary["scene"]["simulation"]["grid"], "dual");
+    assert_eq!(summary["scene"]["simulation"]["cfl"], 0.4);
+    // 2-D f64 APIC: id 4 + x,v 32 + mass,volume 16 + material 2 + F 32 + B 32.
+    assert_eq!(summary["bytes_per_particle"], 118);
+    assert!(
+        summary["timings"]["particle_steps_per_second"]
+            .as_f64()
+            .unwrap()
+            > 0.0
+    );
+    // No temporary files left behind.
+    for e in std::fs::read_dir(out_dir.join("frames")).unwrap() {
+        assert!(!e.unwrap().file_name().to_string_lossy().ends_with(".tmp"));
+    }
+}
+
+#[test]
+fn frames_flag_stops_early() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = write_scene(dir.path(), "s.toml", SMALL_2D);
+    let out_dir = dir.path().join("o");
+    let out = mpm(&[
+        "run",
+        path.to_str().unwrap(),
+        "--out",
+        out_dir.to_str().unwrap(),
+        "--frames",
+        "2",
+    ]);
+    assert!(out.status.success());
+    assert!(out_dir.join("frames/frame_00002.ply").exists());
+    assert!(!out_dir.join("frames/frame_00003.ply").exists());
+}
+
+/// A neo-Hookean body with a time step far beyond stability inverts: the run stops
+/// with the step, the particle and the quantity, exits non-zero, and keeps frame 0
+/// and summary.json.
+#[test]
+fn blow_up_stops_with_step_particle_and_quantity() {
+    let dir = tempfile::tempdir().unwrap();
+    let text = SMALL_2D.replace("fixed-corotated", "neo-hookean");
+    let path = write_scene(dir.path(), "s.toml", &text);
+    let out_dir = dir.path().join("o");
+    let out = mpm(&[
+        "run",
+        path.to_str().unwrap(),
+        "--out",
+        out_dir.to_str().unwrap(),
+        "--set",
+        "simulation.dt=0.01",
+        "--set",
+        "body.0.velocity=[0.0, -40.0]",
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "should have failed: {err}");
+    assert!(err.contains("step ") && err.contains("particle "), "{err}");
+    assert!(
+        err.contains("inverted") || err.contains("not finite"),
+        "{err}"
+    );
+    let f0 = std::fs::read(out_dir.join("frames/frame_00000.ply")).unwrap();
+    assert_eq!(mpm_cli::output::read_ply_positions(&f0).unwrap().len(), 400);
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out_dir.join("summary.json")).unwrap())
+            .unwrap();
+    assert_eq!(summary["status"], "stopped");
+    let stats = std::fs::read_to_string(out_dir.join("stats.csv")).unwrap();
+    assert!(stats.lines().count() >= 2);
+}
