@@ -2,7 +2,7 @@
 //! configuration and the stepper, advanced to requested times.
 
 use crate::reference::{Eulerian, ReferenceConfig};
-use mpm_constitutive::{ConstitutiveModel, ElasticModel};
+use mpm_constitutive::Material;
 use mpm_grid::{Collider, GridLayout};
 use mpm_kernels::Kernel;
 use mpm_math::{Real, Vector};
@@ -38,7 +38,7 @@ pub struct Simulation<T: Real, const D: usize, K: Kernel, L: GridLayout> {
     /// Particle state.
     pub particles: Particles<T, D>,
     /// Material table (indexed by `Particles::material`).
-    pub materials: Vec<ElasticModel<T>>,
+    pub materials: Vec<Material<T>>,
     /// Density of each material (for the wave speed).
     pub densities: Vec<T>,
     /// Transfer scheme.
@@ -58,6 +58,7 @@ pub struct Simulation<T: Real, const D: usize, K: Kernel, L: GridLayout> {
     /// The stepper (grid and work buffers).
     pub stepper: ExplicitStepper<T, D, K, L>,
     wave_speed: T,
+    kinematic_viscosity: T,
 }
 
 impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Simulation<T, D, K, L> {
@@ -65,7 +66,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Simulation<T, D, K, L> {
     #[allow(clippy::too_many_arguments)]
     pub fn new(
         particles: Particles<T, D>,
-        materials: Vec<ElasticModel<T>>,
+        materials: Vec<Material<T>>,
         densities: Vec<T>,
         transfer: Transfer<T>,
         h: T,
@@ -77,7 +78,12 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Simulation<T, D, K, L> {
         let wave_speed = materials
             .iter()
             .zip(&densities)
-            .map(|(m, rho)| ConstitutiveModel::<T, D>::wave_speed(m, *rho))
+            .map(|(m, rho)| m.wave_speed(*rho))
+            .fold(T::zero(), |a, b| if b > a { b } else { a });
+        let kinematic_viscosity = materials
+            .iter()
+            .zip(&densities)
+            .map(|(m, rho)| m.kinematic_viscosity(*rho))
             .fold(T::zero(), |a, b| if b > a { b } else { a });
         Simulation {
             particles,
@@ -100,6 +106,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Simulation<T, D, K, L> {
             reference_updates: 0,
             stepper: ExplicitStepper::new(),
             wave_speed,
+            kinematic_viscosity,
         }
     }
 
@@ -112,13 +119,23 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Simulation<T, D, K, L> {
     pub fn next_dt(&self) -> f64 {
         match self.time_step {
             TimeStepPolicy::Fixed(dt) => dt,
-            TimeStepPolicy::Cfl(cfl) => cfl_time_step(
-                self.params.h,
-                T::lit(cfl),
-                max_speed(&self.particles),
-                self.wave_speed,
-            )
-            .to_f64(),
+            TimeStepPolicy::Cfl(cfl) => {
+                let h = self.params.h.to_f64();
+                let advective = cfl_time_step(
+                    self.params.h,
+                    T::lit(cfl),
+                    max_speed(&self.particles),
+                    self.wave_speed,
+                )
+                .to_f64();
+                // Explicit viscosity is stable for Δt ≤ h²/(2 d ν).
+                let nu: f64 = self.kinematic_viscosity.to_f64();
+                if nu > 0.0 {
+                    advective.min(cfl * h * h / (2.0 * D as f64 * nu))
+                } else {
+                    advective
+                }
+            }
         }
     }
 

@@ -5,11 +5,14 @@
 use crate::output::{ply_bytes, write_atomic, StatsRow, StatsWriter};
 use crate::sampling::{particle_volume, sample_body};
 use crate::scene::{
-    Boundary, ColliderSpec, GridKind, Kernel as KernelKind, ModelKind, Precision, Reduction, Scene,
-    TimeStep, TransferKind,
+    Boundary, ColliderSpec, GridKind, Kernel as KernelKind, MaterialSpec, ModelKind, Precision,
+    Reduction, Scene, TimeStep, TransferKind,
 };
 use mpm_aul::{Simulation, TimeStepPolicy};
-use mpm_constitutive::{ElasticModel, FixedCorotated, Lame, NeoHookean};
+use mpm_constitutive::{
+    ConstitutiveError, DruckerPrager, ElasticModel, FixedCorotated, HenckyElasticity, JFluid, Lame,
+    Material, Nacc, NeoHookean, Snow, StateNeeds, VonMises,
+};
 use mpm_grid::{domain_walls, Collider, ColliderShape, ContactKind, Dual, GridLayout, Single};
 use mpm_kernels::{Compact, CubicBSpline, Kernel, Linear, QuadraticBSpline};
 use mpm_math::{Real, Vector};
@@ -134,44 +137,114 @@ fn contact(b: Boundary) -> ContactKind {
     }
 }
 
-/// The material table of a scene (validated: only supported elastic models reach here).
-pub fn build_materials<T: Real>(
-    scene: &Scene,
-    origin: &str,
-) -> Result<Vec<ElasticModel<T>>, RunError> {
+/// The material table of a scene; an invalid parameter is reported with its key.
+pub fn build_materials<T: Real>(scene: &Scene, origin: &str) -> Result<Vec<Material<T>>, RunError> {
     scene
         .material
         .iter()
         .enumerate()
         .map(|(i, m)| {
-            let bad = |message: String| RunError::Scene {
+            material_from_spec::<T>(m).map_err(|(key, message)| RunError::Scene {
                 origin: origin.to_string(),
-                key: format!("material.{i}"),
+                key: format!("material.{i}.{key}"),
                 message,
-            };
-            let (e, nu) = match (m.youngs_modulus, m.poisson_ratio) {
-                (Some(e), Some(nu)) => (e, nu),
-                _ => return Err(bad("youngs_modulus and poisson_ratio are required".into())),
-            };
-            let lame = Lame::<T>::from_young_poisson(e, nu).map_err(|err| bad(err.to_string()))?;
-            match m.model {
-                ModelKind::FixedCorotated => {
-                    Ok(ElasticModel::FixedCorotated(FixedCorotated::new(lame)))
-                }
-                ModelKind::NeoHookean => Ok(ElasticModel::NeoHookean(NeoHookean::new(lame))),
-                other => Err(bad(format!("model {other:?} is not supported yet"))),
-            }
+            })
         })
         .collect()
+}
+
+/// Default `gamma` of a J-fluid (the usual value for water in weakly compressible SPH/MPM).
+pub const DEFAULT_GAMMA: f64 = 7.0;
+/// Default snow critical compression (Stomakhin et al. 2013's reference snow).
+pub const SNOW_THETA_C: f64 = 0.025;
+/// Default snow critical stretch (same source).
+pub const SNOW_THETA_S: f64 = 0.0075;
+/// Default snow hardening coefficient ξ (same source).
+pub const SNOW_HARDENING: f64 = 10.0;
+
+/// One material from its scene keys: `Err((key, message))` names the offending key.
+pub fn material_from_spec<T: Real>(m: &MaterialSpec) -> Result<Material<T>, (String, String)> {
+    let param = |err: ConstitutiveError| match err {
+        ConstitutiveError::InvalidParameter { name, .. } => (name.to_string(), err.to_string()),
+    };
+    let required = |key: &str, v: Option<f64>| {
+        v.ok_or_else(|| {
+            (
+                key.to_string(),
+                format!("is required by model \"{}\"", m.model.name()),
+            )
+        })
+    };
+    let lame = || -> Result<Lame<T>, (String, String)> {
+        let e = required("youngs_modulus", m.youngs_modulus)?;
+        let nu = required("poisson_ratio", m.poisson_ratio)?;
+        Lame::<T>::from_young_poisson(e, nu).map_err(param)
+    };
+    Ok(match m.model {
+        ModelKind::FixedCorotated => {
+            Material::Elastic(ElasticModel::FixedCorotated(FixedCorotated::new(lame()?)))
+        }
+        ModelKind::NeoHookean => {
+            Material::Elastic(ElasticModel::NeoHookean(NeoHookean::new(lame()?)))
+        }
+        ModelKind::JFluid => Material::JFluid(
+            JFluid::new(
+                required("bulk_modulus", m.bulk_modulus)?,
+                m.gamma.unwrap_or(DEFAULT_GAMMA),
+                m.viscosity.unwrap_or(0.0),
+            )
+            .map_err(param)?,
+        ),
+        ModelKind::DruckerPrager => Material::DruckerPrager(
+            DruckerPrager::new(
+                HenckyElasticity::new(lame()?),
+                required("friction_angle_deg", m.friction_angle_deg)?,
+                m.cohesion.unwrap_or(0.0),
+            )
+            .map_err(param)?,
+        ),
+        ModelKind::VonMises => Material::VonMises(
+            VonMises::new(
+                HenckyElasticity::new(lame()?),
+                required("yield_stress", m.yield_stress)?,
+                m.hardening.unwrap_or(0.0),
+            )
+            .map_err(param)?,
+        ),
+        ModelKind::Nacc => Material::Nacc(
+            Nacc::new(
+                HenckyElasticity::new(lame()?),
+                required("alpha0", m.alpha0)?,
+                required("beta", m.beta)?,
+                required("xi", m.xi)?,
+                required("m", m.m)?,
+            )
+            .map_err(param)?,
+        ),
+        ModelKind::Snow => Material::Snow(
+            Snow::new(
+                lame()?,
+                m.theta_c.unwrap_or(SNOW_THETA_C),
+                m.theta_s.unwrap_or(SNOW_THETA_S),
+                m.hardening.unwrap_or(SNOW_HARDENING),
+            )
+            .map_err(param)?,
+        ),
+    })
 }
 
 /// Particles of every body, plus each particle's body index (by id).
 pub fn build_particles<T: Real, const D: usize>(
     scene: &Scene,
+    materials: &[Material<T>],
     stores_affine: bool,
 ) -> (Particles<T, D>, Vec<u16>) {
     let s = &scene.simulation;
-    let mut particles = Particles::<T, D>::new(stores_affine);
+    // Only the state the scene's materials need.
+    let needs = materials
+        .iter()
+        .fold(StateNeeds::default(), |n, m| n.union(m.needs()));
+    let mut particles = Particles::<T, D>::new(stores_affine, needs);
     let mut body_of = Vec::new();
     for (b, body) in scene.body.iter().enumerate() {
         let mat = scene.material_index(&body.material).unwrap_or(0);
@@ -206,6 +279,9 @@ pub fn build_particles<T: Real, const D: usize>(
                 T::lit(density * vol),
                 T::lit(vol),
                 mat as u16,
+                materials
+                    .get(mat)
+                    .map_or(T::zero(), |m| m.initial_plastic_state()),
             );
             body_of.push(b as u16);
         }
@@ -287,8 +363,11 @@ pub fn build_simulation<T: Real, const D: usize, K: Kernel, L: GridLayout>(
     let transfer = build_transfer::<T>(scene);
     let materials = build_materials::<T>(scene, origin)?;
     let densities = scene.material.iter().map(|m| T::lit(m.density)).collect();
-    let (particles, body_of) =
-        build_particles::<T, D>(scene, TransferScheme::<T, D>::stores_affine(&transfer));
+    let (particles, body_of) = build_particles::<T, D>(
+        scene,
+        &materials,
+        TransferScheme::<T, D>::stores_affine(&transfer),
+    );
     let policy = match s.dt {
         TimeStep::Auto => TimeStepPolicy::Cfl(s.cfl),
         TimeStep::Fixed(dt) => TimeStepPolicy::Fixed(dt),

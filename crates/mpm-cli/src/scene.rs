@@ -272,8 +272,19 @@ impl ModelKind {
     /// The models this build can simulate; the others are accepted by the parser so
     /// that the error can say "not supported yet" instead of "unknown variant".
     pub fn is_supported(self) -> bool {
-        matches!(self, ModelKind::FixedCorotated | ModelKind::NeoHookean)
+        true
     }
+
+    /// Every model, in scene-format order.
+    pub const ALL: [ModelKind; 7] = [
+        ModelKind::FixedCorotated,
+        ModelKind::NeoHookean,
+        ModelKind::JFluid,
+        ModelKind::DruckerPrager,
+        ModelKind::Nacc,
+        ModelKind::VonMises,
+        ModelKind::Snow,
+    ];
 
     /// Whether the model needs `youngs_modulus` and `poisson_ratio`.
     pub fn is_elastic(self) -> bool {
@@ -288,12 +299,12 @@ impl ModelKind {
             ModelKind::JFluid => &["bulk_modulus", "gamma", "viscosity"],
             ModelKind::DruckerPrager => &[E[0], E[1], "friction_angle_deg", "cohesion"],
             ModelKind::VonMises => &[E[0], E[1], "yield_stress", "hardening"],
-            ModelKind::Nacc => &[E[0], E[1], "alpha0", "beta", "xi", "m", "hardening"],
+            ModelKind::Nacc => &[E[0], E[1], "alpha0", "beta", "xi", "m"],
             ModelKind::Snow => &[E[0], E[1], "theta_c", "theta_s", "hardening"],
         }
     }
 
-    fn name(self) -> &'static str {
+    pub fn name(self) -> &'static str {
         match self {
             ModelKind::FixedCorotated => "fixed-corotated",
             ModelKind::NeoHookean => "neo-hookean",
@@ -1065,9 +1076,18 @@ impl Scene {
             let allowed = m.model.allowed_keys();
             for key in m.set_optional_keys() {
                 if !allowed.contains(&key) {
+                    let owners: Vec<&str> = ModelKind::ALL
+                        .iter()
+                        .filter(|o| o.allowed_keys().contains(&key))
+                        .map(|o| o.name())
+                        .collect();
                     return Err(c.err(
                         &k(key),
-                        format!("does not apply to model \"{}\"", m.model.name()),
+                        format!(
+                            "does not apply to model \"{}\" (it is a key of {})",
+                            m.model.name(),
+                            owners.join(", ")
+                        ),
                         format!(
                             "Remove it; the keys of \"{}\" are: name, model, density, {}",
                             m.model.name(),
@@ -1125,6 +1145,14 @@ impl Scene {
                 if let Some(v) = v {
                     c.finite(&k(key), v)?;
                 }
+            }
+            // Model parameter ranges, checked by the models' own constructors.
+            if let Err((key, message)) = crate::run::material_from_spec::<f64>(m) {
+                return Err(c.err(
+                    &k(&key),
+                    message,
+                    format!("Correct this parameter of model \"{}\"", m.model.name()),
+                ));
             }
         }
 
@@ -1767,16 +1795,6 @@ normal = [0.0, 1.0]
         );
         bad(
             FULL_3D,
-            &["material.0.model=snow"],
-            &["material.0.model", "snow", ns],
-        );
-        bad(
-            FULL_3D,
-            &["material.0.model=j-fluid"],
-            &["material.0.model", ns],
-        );
-        bad(
-            FULL_3D,
             &["body.0.shape={ type = \"mesh\", path = \"bunny.obj\" }"],
             &["body.0.shape.type", "mesh", ns],
         );
@@ -1785,6 +1803,69 @@ normal = [0.0, 1.0]
             &["output.format=[\"ply\", \"vtu\"]"],
             &["output.format.1", "vtu", ns],
         );
+    }
+
+    #[test]
+    fn model_parameter_ranges_and_owners() {
+        // Each model's own keys, validated by the model's constructor.
+        let cases: [(&[&str], &[&str]); 9] = [
+            (
+                &[
+                    "material.0.model=drucker-prager",
+                    "material.0.friction_angle_deg=95",
+                ],
+                &["material.0.friction_angle_deg", "(0, 90)"],
+            ),
+            (
+                &["material.0.model=drucker-prager"],
+                &["material.0.friction_angle_deg", "required"],
+            ),
+            (
+                &["material.0.model=von-mises", "material.0.yield_stress=-1"],
+                &["material.0.yield_stress"],
+            ),
+            (
+                &["material.0.model=snow", "material.0.theta_c=1.5"],
+                &["material.0.theta_c", "(0, 1)"],
+            ),
+            (
+                &["material.0.model=snow", "material.0.theta_s=0"],
+                &["material.0.theta_s"],
+            ),
+            (
+                &[
+                    "material.0.model=nacc",
+                    "material.0.alpha0=-0.01",
+                    "material.0.beta=0.5",
+                    "material.0.xi=1",
+                    "material.0.m=-1",
+                ],
+                &["material.0.m"],
+            ),
+            (
+                &["material.0.model=nacc"],
+                &["material.0.alpha0", "required"],
+            ),
+            (
+                &[
+                    "material.0.model=j-fluid",
+                    "material.0.youngs_modulus=0",
+                    "material.0.bulk_modulus=10",
+                    "material.0.gamma=0.5",
+                ],
+                &["material.0.youngs_modulus", "fixed-corotated"],
+            ),
+            (
+                &[
+                    "material.0.model=fixed-corotated",
+                    "material.0.yield_stress=1e6",
+                ],
+                &["material.0.yield_stress", "von-mises"],
+            ),
+        ];
+        for (sets, expect) in cases {
+            bad(FULL_3D, sets, expect);
+        }
     }
 
     #[test]

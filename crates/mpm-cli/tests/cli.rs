@@ -120,8 +120,35 @@ fn later_features_say_not_supported_yet() {
         );
     }
     assert_rejected(
+        &|s| {
+            s.replace(
+                "kernel = \"compact\"",
+                "kernel = \"compact\"\nintegrator = \"implicit\"",
+            )
+        },
+        &["simulation.integrator", "not supported yet"],
+    );
+}
+
+#[test]
+fn model_keys_are_checked() {
+    // A model's required key is named; a key of another model names its owner.
+    assert_rejected(
         &|s| s.replace("model = \"fixed-corotated\"", "model = \"nacc\""),
-        &["not supported yet", "nacc"],
+        &["material.0.alpha0", "nacc"],
+    );
+    assert_rejected(
+        &|s| s.replace("poisson_ratio = 0.3", "poisson_ratio = 0.3\ntheta_c = 0.02"),
+        &["material.0.theta_c", "snow"],
+    );
+    assert_rejected(
+        &|s| {
+            s.replace(
+                "model = \"fixed-corotated\"",
+                "model = \"drucker-prager\"\nfriction_angle_deg = 0.0",
+            )
+        },
+        &["material.0.friction_angle_deg", "(0, 90)"],
     );
 }
 

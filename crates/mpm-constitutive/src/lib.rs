@@ -10,11 +10,28 @@
 //! parameterised by Lamé constants [`Lame`]; [`ElasticModel`] is the closed enum
 //! over them used where the model is chosen at run time.
 
+mod drucker_prager;
+mod elastoplastic;
 mod fixed_corotated;
+mod hencky;
+mod isotropic;
+mod j_fluid;
+mod material;
+mod nacc;
 mod neo_hookean;
+mod snow;
+mod von_mises;
 
+pub use drucker_prager::DruckerPrager;
+pub use elastoplastic::ElastoplasticModel;
 pub use fixed_corotated::FixedCorotated;
+pub use hencky::HenckyElasticity;
+pub use j_fluid::JFluid;
+pub use material::{Material, StateFault, StateMut, StateNeeds, StateRef};
+pub use nacc::Nacc;
 pub use neo_hookean::NeoHookean;
+pub use snow::Snow;
+pub use von_mises::VonMises;
 
 use mpm_math::{Matrix, Real};
 use serde::{Deserialize, Serialize};

@@ -4,19 +4,25 @@
 //! threads. Throughput = 262,144 particle-steps per iteration.
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
-use mpm_constitutive::{ElasticModel, FixedCorotated};
+use mpm_constitutive::{ElasticModel, FixedCorotated, Material, StateNeeds};
 use mpm_grid::{domain_walls, ContactKind, Dual, GridLayout, Single};
 use mpm_kernels::{Compact, Kernel, QuadraticBSpline};
 use mpm_transfer::{Apic, ExplicitStepper, Particles, StepParams};
 use nalgebra::Vector3;
 
+const ELASTIC: StateNeeds = StateNeeds {
+    deformation: true,
+    plastic: false,
+    jacobian: false,
+    velocity_gradient: false,
+};
 const N: usize = 64;
 
 fn jelly() -> Particles<f32, 3> {
     let h = 1.0 / N as f32;
     let dx = h / 2.0;
     let vol = dx * dx * dx;
-    let mut p = Particles::new(true);
+    let mut p = Particles::new(true, ELASTIC);
     let side = N; // 32 cells × 2 particles per axis
     for k in 0..side {
         for j in 0..side {
@@ -26,7 +32,7 @@ fn jelly() -> Particles<f32, 3> {
                     0.3 + (j as f32 + 0.5) * dx,
                     0.25 + (k as f32 + 0.5) * dx,
                 );
-                p.push(x, Vector3::new(0.3, -1.5, 0.2), 1000.0 * vol, vol, 0);
+                p.push(x, Vector3::new(0.3, -1.5, 0.2), 1000.0 * vol, vol, 0, 0.0);
             }
         }
     }
@@ -36,7 +42,7 @@ fn jelly() -> Particles<f32, 3> {
 fn bench_kernel<K: Kernel, L: GridLayout>(c: &mut Criterion, label: &str) {
     let h = 1.0 / N as f32;
     let model = FixedCorotated::from_young_poisson(1e4, 0.3).expect("valid");
-    let mats = vec![ElasticModel::FixedCorotated(model)];
+    let mats = vec![Material::Elastic(ElasticModel::FixedCorotated(model))];
     let wave = model.lame.wave_speed(1000.0);
     let lo = Vector3::new(0.0, 0.0, 0.0);
     let hi = Vector3::new(1.0, 1.0, 1.0);

@@ -2,7 +2,7 @@
 
 use crate::explicit_step::{moment_matrix, stencils};
 use crate::particles::Particles;
-use mpm_constitutive::{ConstitutiveModel, ElasticModel};
+use mpm_constitutive::Material;
 use mpm_grid::GridLayout;
 use mpm_kernels::Kernel;
 use mpm_math::{affine_moment, Real};
@@ -51,7 +51,7 @@ impl Totals {
 /// quantity the transfer conserves.
 pub fn particle_totals<T: Real, const D: usize, K: Kernel, L: GridLayout>(
     particles: &Particles<T, D>,
-    materials: &[ElasticModel<T>],
+    materials: &[Material<T>],
     h: T,
 ) -> Totals {
     let gradient_form = K::NODES_PER_AXIS == 2 && L::GRIDS == 1;
@@ -77,9 +77,7 @@ pub fn particle_totals<T: Real, const D: usize, K: Kernel, L: GridLayout>(
         }
         let model = &materials[particles.material[p] as usize];
         t.elastic_energy +=
-            (ConstitutiveModel::<T, D>::energy_density(model, &particles.deformation[p])
-                * particles.volume[p])
-                .to_f64();
+            (model.energy_density(&particles.state(p)) * particles.volume[p]).to_f64();
     }
     t
 }

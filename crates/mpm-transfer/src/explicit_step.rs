@@ -6,10 +6,10 @@ use crate::diagnostics::Totals;
 use crate::particles::Particles;
 use crate::scheme::{Gathered, TransferScheme};
 use crate::StepError;
-use mpm_constitutive::{ConstitutiveModel, ElasticModel};
+use mpm_constitutive::{Material, StateFault, StateMut};
 use mpm_grid::{BlockSparseGrid, Collider, GridLayout, BLOCK};
 use mpm_kernels::{Kernel, Stencil};
-use mpm_math::{determinant, try_inverse, Matrix, Real, Vector};
+use mpm_math::{try_inverse, Matrix, Real, Vector};
 use rayon::prelude::*;
 use std::marker::PhantomData;
 use std::time::Instant;
@@ -59,6 +59,19 @@ pub struct ExplicitStepper<T: Real, const D: usize, K: Kernel, L: GridLayout> {
 impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Default for ExplicitStepper<T, D, K, L> {
     fn default() -> Self {
         Self::new()
+    }
+}
+
+/// Particles per parallel work item in G2P.
+const CHUNK: usize = 512;
+
+/// `v` split into chunks of [`CHUNK`], or as many empty slices when `v` is an absent
+/// (empty) array of a scene with `n` particles.
+fn chunks<X: Send>(v: &mut [X], n: usize) -> Vec<&mut [X]> {
+    if v.is_empty() {
+        (0..n.div_ceil(CHUNK)).map(|_| Default::default()).collect()
+    } else {
+        v.chunks_mut(CHUNK).collect()
     }
 }
 
@@ -120,7 +133,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
     pub fn step<S: TransferScheme<T, D>>(
         &mut self,
         particles: &mut Particles<T, D>,
-        materials: &[ElasticModel<T>],
+        materials: &[Material<T>],
         scheme: &S,
         params: &StepParams<T, D>,
     ) -> Result<(), StepError> {
@@ -166,7 +179,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
     pub fn particle_to_grid<S: TransferScheme<T, D>>(
         &mut self,
         particles: &Particles<T, D>,
-        materials: &[ElasticModel<T>],
+        materials: &[Material<T>],
         scheme: &S,
         dt: T,
         h: T,
@@ -190,7 +203,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
                     };
                     let c = scheme.p2g_affine(p.affine.get(i), d_inv.as_ref());
                     let model = &materials[p.material[i] as usize];
-                    let stress = model.kirchhoff_stress(&p.deformation[i]) * (-p.volume[i] * dt);
+                    let stress = model.kirchhoff_stress(&p.state(i)) * (-p.volume[i] * dt);
                     let mls_stress = match (mls, d_inv) {
                         (true, Some(di)) => Some(stress * di),
                         _ => None,
@@ -241,7 +254,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
     pub fn grid_to_particle<S: TransferScheme<T, D>>(
         &mut self,
         particles: &mut Particles<T, D>,
-        materials: &[ElasticModel<T>],
+        materials: &[Material<T>],
         scheme: &S,
         params: &StepParams<T, D>,
     ) -> Result<(), StepError> {
@@ -260,17 +273,20 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
             v,
             material,
             deformation,
+            plastic,
+            jacobian,
+            velocity_gradient,
             affine,
-            stores_affine,
             ..
         } = particles;
         let (id, material) = (&*id, &*material);
+        let n = x.len();
 
         let one = |p: usize,
                    xp: &mut Vector<T, D>,
                    vp: &mut Vector<T, D>,
-                   fp: &mut Matrix<T, D>,
-                   ap: Option<&mut Matrix<T, D>>|
+                   ap: Option<&mut Matrix<T, D>>,
+                   mut state: StateMut<'_, T, D>|
          -> Option<StepError> {
             let view = grid.gather_view(homes[p] as usize);
             let st = stencils::<T, D, K, L>(xp, inv_h);
@@ -312,7 +328,6 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
             g.moment_matrix *= gw;
             let up = scheme.update(vp, &g, gradient_form);
             *vp = up.velocity;
-            *fp = (Matrix::<T, D>::identity() + up.velocity_gradient * dt) * *fp;
             let mut xn = *xp + up.velocity * dt;
             for a in 0..D {
                 // Last safeguard: the walls act one cell inside the domain.
@@ -335,45 +350,57 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
                     quantity: "position",
                 });
             }
-            if !fp.iter().all(|c| c.is_finite_real()) {
-                return Some(StepError::NonFinite {
-                    particle: pid,
-                    quantity: "deformation gradient",
-                });
-            }
             let model = &materials[material[p] as usize];
-            if !ConstitutiveModel::<T, D>::is_admissible(model, fp) {
-                return Some(StepError::Inverted {
+            match model.advance(&mut state, &up.velocity_gradient, dt) {
+                Ok(()) => None,
+                Err(StateFault::NonFinite(quantity)) => Some(StepError::NonFinite {
                     particle: pid,
-                    model: ConstitutiveModel::<T, D>::name(model),
-                    det: determinant(fp).to_f64(),
-                });
+                    quantity,
+                }),
+                Err(StateFault::Inverted(det)) => Some(StepError::Inverted {
+                    particle: pid,
+                    model: model.name(),
+                    det,
+                }),
             }
-            None
         };
 
-        let first_error = if *stores_affine {
-            (
-                x.par_iter_mut(),
-                v.par_iter_mut(),
-                deformation.par_iter_mut(),
-                affine.par_iter_mut(),
-            )
-                .into_par_iter()
-                .enumerate()
-                .filter_map(|(p, (xp, vp, fp, ap))| one(p, xp, vp, fp, Some(ap)))
-                .min_by_key(|e| e.particle())
-        } else {
-            (
-                x.par_iter_mut(),
-                v.par_iter_mut(),
-                deformation.par_iter_mut(),
-            )
-                .into_par_iter()
-                .enumerate()
-                .filter_map(|(p, (xp, vp, fp))| one(p, xp, vp, fp, None))
-                .min_by_key(|e| e.particle())
-        };
+        // Every array split into the same chunks (absent arrays: empty slices), so
+        // one parallel loop updates whichever arrays this scene stores.
+        let first_error = (
+            chunks(x, n),
+            chunks(v, n),
+            chunks(affine, n),
+            chunks(deformation, n),
+            chunks(plastic, n),
+            chunks(jacobian, n),
+            chunks(velocity_gradient, n),
+        )
+            .into_par_iter()
+            .enumerate()
+            .filter_map(|(c, (xs, vs, as_, fs, qs, js, ls))| {
+                let mut worst: Option<StepError> = None;
+                let mut as_ = as_.iter_mut();
+                let mut fs = fs.iter_mut();
+                let mut qs = qs.iter_mut();
+                let mut js = js.iter_mut();
+                let mut ls = ls.iter_mut();
+                for (k, (xp, vp)) in xs.iter_mut().zip(vs.iter_mut()).enumerate() {
+                    let state = StateMut {
+                        deformation: fs.next(),
+                        plastic: qs.next(),
+                        jacobian: js.next(),
+                        velocity_gradient: ls.next(),
+                    };
+                    if let Some(e) = one(c * CHUNK + k, xp, vp, as_.next(), state) {
+                        if worst.as_ref().is_none_or(|w| e.particle() < w.particle()) {
+                            worst = Some(e);
+                        }
+                    }
+                }
+                worst
+            })
+            .min_by_key(|e| e.particle());
         match first_error {
             Some(e) => Err(e),
             None => Ok(()),

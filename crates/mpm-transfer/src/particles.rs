@@ -1,11 +1,14 @@
 //! Particles as a structure of arrays holding only what the scene's models and
 //! transfer scheme need.
 
+use mpm_constitutive::{StateMut, StateNeeds, StateRef};
 use mpm_math::{Matrix, Real, Vector};
 use rayon::prelude::*;
 
 /// Particle state (structure of arrays). Particles are kept sorted by grid block for
-/// locality; `id` is each particle's original index, stable for output.
+/// locality; `id` is each particle's original index, stable for output. Material
+/// state arrays exist only when some material of the scene needs them
+/// ([`StateNeeds`]); the affine matrix only for APIC/MLS.
 #[derive(Clone, Debug, Default)]
 pub struct Particles<T: Real, const D: usize> {
     /// Original index (creation order).
@@ -20,20 +23,30 @@ pub struct Particles<T: Real, const D: usize> {
     pub volume: Vec<T>,
     /// Index into the material table.
     pub material: Vec<u16>,
-    /// Deformation gradient `F_p`.
+    /// Deformation gradient `F` (elastic part `F_E` for plastic models).
     pub deformation: Vec<Matrix<T, D>>,
+    /// Hardening scalar of elastoplastic models.
+    pub plastic: Vec<T>,
+    /// Volume ratio `J` of fluids.
+    pub jacobian: Vec<T>,
+    /// Velocity gradient of the last step (viscous fluids).
+    pub velocity_gradient: Vec<Matrix<T, D>>,
     /// Affine matrix stored by APIC/MLS (`B_p`, or `C_p` for two-node single-grid
     /// stencils); empty for PIC and FLIP.
     pub affine: Vec<Matrix<T, D>>,
     /// Whether `affine` is kept (APIC/MLS).
     pub stores_affine: bool,
+    /// Which material arrays are kept.
+    pub needs: StateNeeds,
 }
 
 impl<T: Real, const D: usize> Particles<T, D> {
-    /// An empty set; `with_affine` reserves the APIC/MLS matrix.
-    pub fn new(stores_affine: bool) -> Self {
+    /// An empty set storing the affine matrix when `stores_affine` and the material
+    /// arrays in `needs`.
+    pub fn new(stores_affine: bool, needs: StateNeeds) -> Self {
         Particles {
             stores_affine,
+            needs,
             ..Default::default()
         }
     }
@@ -47,30 +60,83 @@ impl<T: Real, const D: usize> Particles<T, D> {
         self.x.is_empty()
     }
 
-    /// Appends a particle at rest in its reference configuration (`F = I`).
-    pub fn push(&mut self, x: Vector<T, D>, v: Vector<T, D>, mass: T, volume: T, material: u16) {
+    /// Appends a particle in its reference configuration (`F = I`, `J = 1`, zero
+    /// velocity gradient) with hardening scalar `plastic`.
+    pub fn push(
+        &mut self,
+        x: Vector<T, D>,
+        v: Vector<T, D>,
+        mass: T,
+        volume: T,
+        material: u16,
+        plastic: T,
+    ) {
         self.id.push(self.x.len() as u32);
         self.x.push(x);
         self.v.push(v);
         self.mass.push(mass);
         self.volume.push(volume);
         self.material.push(material);
-        self.deformation.push(Matrix::<T, D>::identity());
+        if self.needs.deformation {
+            self.deformation.push(Matrix::<T, D>::identity());
+        }
+        if self.needs.plastic {
+            self.plastic.push(plastic);
+        }
+        if self.needs.jacobian {
+            self.jacobian.push(T::one());
+        }
+        if self.needs.velocity_gradient {
+            self.velocity_gradient.push(Matrix::<T, D>::zeros());
+        }
         if self.stores_affine {
             self.affine.push(Matrix::<T, D>::zeros());
+        }
+    }
+
+    /// Material state of particle `i`.
+    #[inline(always)]
+    pub fn state(&self, i: usize) -> StateRef<'_, T, D> {
+        StateRef {
+            deformation: self.deformation.get(i),
+            plastic: self.plastic.get(i).copied(),
+            jacobian: self.jacobian.get(i).copied(),
+            velocity_gradient: self.velocity_gradient.get(i),
+        }
+    }
+
+    /// Mutable material state of particle `i`.
+    pub fn state_mut(&mut self, i: usize) -> StateMut<'_, T, D> {
+        StateMut {
+            deformation: self.deformation.get_mut(i),
+            plastic: self.plastic.get_mut(i),
+            jacobian: self.jacobian.get_mut(i),
+            velocity_gradient: self.velocity_gradient.get_mut(i),
         }
     }
 
     /// Bytes of state per particle (the arrays this scene actually holds).
     pub fn bytes_per_particle(&self) -> usize {
         use std::mem::size_of;
+        let m = size_of::<Matrix<T, D>>();
         let mut b = size_of::<u32>()
             + 2 * size_of::<Vector<T, D>>()
             + 2 * size_of::<T>()
-            + size_of::<u16>()
-            + size_of::<Matrix<T, D>>();
+            + size_of::<u16>();
+        if self.needs.deformation {
+            b += m;
+        }
+        if self.needs.plastic {
+            b += size_of::<T>();
+        }
+        if self.needs.jacobian {
+            b += size_of::<T>();
+        }
+        if self.needs.velocity_gradient {
+            b += m;
+        }
         if self.stores_affine {
-            b += size_of::<Matrix<T, D>>();
+            b += m;
         }
         b
     }
@@ -96,6 +162,9 @@ impl<T: Real, const D: usize> Particles<T, D> {
         permute(&mut self.volume, order);
         permute(&mut self.material, order);
         permute(&mut self.deformation, order);
+        permute(&mut self.plastic, order);
+        permute(&mut self.jacobian, order);
+        permute(&mut self.velocity_gradient, order);
         permute(&mut self.affine, order);
     }
 

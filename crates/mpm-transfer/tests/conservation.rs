@@ -2,7 +2,7 @@
 //! that touches no wall and has no gravity: two elastic spheres (CK-MPM §6.1, scaled
 //! down) that collide and spin. Every kernel × layout × scheme.
 
-use mpm_constitutive::{ElasticModel, FixedCorotated};
+use mpm_constitutive::{ElasticModel, FixedCorotated, Material, StateNeeds};
 use mpm_grid::{Dual, GridLayout, Single};
 use mpm_kernels::{Compact, CubicBSpline, Kernel, Linear, QuadraticBSpline};
 use mpm_math::Vector;
@@ -12,13 +12,19 @@ use mpm_transfer::{
 };
 use nalgebra::Vector3;
 
+const ELASTIC: StateNeeds = StateNeeds {
+    deformation: true,
+    plastic: false,
+    jacobian: false,
+    velocity_gradient: false,
+};
 const H: f64 = 0.01;
 
 /// Two spheres of radius 3h, 8 particles per cell, approaching each other with
 /// ±(0.5, 0.5, 0.5) m/s on top of a common drift (so the total momentum is not zero),
 /// both spinning; they touch after ≈ 20 steps.
 fn two_spheres(affine: bool) -> Particles<f64, 3> {
-    let mut p = Particles::new(affine);
+    let mut p = Particles::new(affine, ELASTIC);
     let radius = 3.0 * H;
     let centers = [
         Vector3::new(0.2, 0.2, 0.2),
@@ -37,7 +43,7 @@ fn two_spheres(affine: bool) -> Particles<f64, 3> {
                     let r = Vector3::new(i as f64 + 0.5, j as f64 + 0.5, k as f64 + 0.5) * dx;
                     if r.norm() < radius {
                         let v = drift + speeds[s] + omega[s].cross(&r);
-                        p.push(centers[s] + r, v, 1000.0 * vol, vol, 0);
+                        p.push(centers[s] + r, v, 1000.0 * vol, vol, 0, 0.0);
                         // A pre-strain so that stresses act from the first step.
                         let last = p.len() - 1;
                         p.deformation[last] = nalgebra::Matrix3::new(
@@ -51,10 +57,10 @@ fn two_spheres(affine: bool) -> Particles<f64, 3> {
     p
 }
 
-fn material() -> Vec<ElasticModel<f64>> {
-    vec![ElasticModel::FixedCorotated(
+fn material() -> Vec<Material<f64>> {
+    vec![Material::Elastic(ElasticModel::FixedCorotated(
         FixedCorotated::from_young_poisson(1e5, 0.4).unwrap(),
-    )]
+    ))]
 }
 
 fn params(dt: f64) -> StepParams<f64, 3> {
@@ -84,7 +90,7 @@ fn run_with_cfl<K: Kernel, L: GridLayout>(scheme: Transfer<f64>, steps: usize, c
     let affine = TransferScheme::<f64, 3>::stores_affine(&scheme);
     let mut p = two_spheres(affine);
     let mats = material();
-    let c = mats[0].lame().wave_speed(1000.0);
+    let c = mats[0].wave_speed(1000.0);
     let dt = cfl_time_step(H, cfl, 1.5, c);
     let mut stepper = ExplicitStepper::<f64, 3, K, L>::new();
     let start = particle_totals::<f64, 3, K, L>(&p, &mats, H);

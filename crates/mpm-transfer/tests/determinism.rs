@@ -1,7 +1,7 @@
 //! 1 thread and 2 threads give bit-identical particle states (no float atomics; the
 //! grid reduction and the particle sort have fixed orders).
 
-use mpm_constitutive::{ElasticModel, FixedCorotated, NeoHookean};
+use mpm_constitutive::{ElasticModel, FixedCorotated, Material, NeoHookean, StateNeeds};
 use mpm_grid::{domain_walls, ContactKind, Dual, GridLayout, Single};
 use mpm_kernels::{Compact, Kernel, QuadraticBSpline};
 use mpm_math::Vector;
@@ -10,8 +10,15 @@ use mpm_transfer::{
 };
 use nalgebra::Vector3;
 
+const ELASTIC: StateNeeds = StateNeeds {
+    deformation: true,
+    plastic: false,
+    jacobian: false,
+    velocity_gradient: false,
+};
+
 fn scene(affine: bool) -> Particles<f64, 3> {
-    let mut p = Particles::new(affine);
+    let mut p = Particles::new(affine, ELASTIC);
     let h = 0.02;
     let dx = h / 2.0;
     let vol = dx * dx * dx;
@@ -29,6 +36,7 @@ fn scene(affine: bool) -> Particles<f64, 3> {
                         1000.0 * vol,
                         vol,
                         b as u16,
+                        0.0,
                     );
                 }
             }
@@ -45,8 +53,12 @@ fn run<K: Kernel, L: GridLayout>(scheme: Transfer<f64>, threads: usize) -> Vec<u
     pool.install(|| {
         let mut p = scene(TransferScheme::<f64, 3>::stores_affine(&scheme));
         let mats = vec![
-            ElasticModel::FixedCorotated(FixedCorotated::from_young_poisson(2e4, 0.3).unwrap()),
-            ElasticModel::NeoHookean(NeoHookean::from_young_poisson(5e4, 0.3).unwrap()),
+            Material::Elastic(ElasticModel::FixedCorotated(
+                FixedCorotated::from_young_poisson(2e4, 0.3).unwrap(),
+            )),
+            Material::Elastic(ElasticModel::NeoHookean(
+                NeoHookean::from_young_poisson(5e4, 0.3).unwrap(),
+            )),
         ];
         let h = 0.02;
         let lo = Vector3::new(0.0, 0.0, 0.0);

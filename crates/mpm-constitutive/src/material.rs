@@ -1,0 +1,245 @@
+//! [`Material`]: the closed set of models a scene can assign to a body, the particle
+//! state each needs, and the per-particle operations the stepper performs on it.
+//!
+//! "Model only what a scene requires": a model declares the state it needs
+//! ([`StateNeeds`]) and particles store the union over the scene's materials — an
+//! elastic solid stores `F`; an elastoplastic one `F_E` and one hardening scalar; a
+//! weakly compressible fluid only `J` (and the velocity gradient when viscous).
+
+use crate::{
+    ConstitutiveModel, DruckerPrager, ElasticModel, ElastoplasticModel, JFluid, Nacc, Snow,
+    VonMises,
+};
+use mpm_math::{determinant, Matrix, Real};
+
+/// Which per-particle arrays a model needs.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct StateNeeds {
+    /// The deformation gradient `F` (elastic part `F_E` for plastic models).
+    pub deformation: bool,
+    /// One hardening scalar.
+    pub plastic: bool,
+    /// The volume ratio `J` alone (fluids).
+    pub jacobian: bool,
+    /// The velocity gradient of the last step (viscosity).
+    pub velocity_gradient: bool,
+}
+
+impl StateNeeds {
+    /// The union of two sets of needs.
+    pub fn union(self, o: StateNeeds) -> StateNeeds {
+        StateNeeds {
+            deformation: self.deformation || o.deformation,
+            plastic: self.plastic || o.plastic,
+            jacobian: self.jacobian || o.jacobian,
+            velocity_gradient: self.velocity_gradient || o.velocity_gradient,
+        }
+    }
+}
+
+/// Read access to one particle's material state (absent arrays are `None`).
+#[derive(Clone, Copy, Debug)]
+pub struct StateRef<'a, T: Real, const D: usize> {
+    /// `F` or `F_E`.
+    pub deformation: Option<&'a Matrix<T, D>>,
+    /// Hardening scalar.
+    pub plastic: Option<T>,
+    /// `J` (fluids).
+    pub jacobian: Option<T>,
+    /// Last velocity gradient.
+    pub velocity_gradient: Option<&'a Matrix<T, D>>,
+}
+
+/// Write access to one particle's material state.
+#[derive(Debug)]
+pub struct StateMut<'a, T: Real, const D: usize> {
+    /// `F` or `F_E`.
+    pub deformation: Option<&'a mut Matrix<T, D>>,
+    /// Hardening scalar.
+    pub plastic: Option<&'a mut T>,
+    /// `J` (fluids).
+    pub jacobian: Option<&'a mut T>,
+    /// Last velocity gradient.
+    pub velocity_gradient: Option<&'a mut Matrix<T, D>>,
+}
+
+/// Why a particle's state cannot be continued from.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum StateFault {
+    /// A quantity is NaN or infinite.
+    NonFinite(&'static str),
+    /// Inverted or degenerate: `det F` (or `J`) outside what the model can handle.
+    Inverted(f64),
+}
+
+/// The models a scene can name, dispatched per particle by `match`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Material<T: Real> {
+    /// Hyperelastic solid (`F`).
+    Elastic(ElasticModel<T>),
+    /// Drucker–Prager sand on Hencky elasticity (`F_E`, plastic strain).
+    DruckerPrager(DruckerPrager<T>),
+    /// von Mises (J2) metal on Hencky elasticity (`F_E`, equivalent plastic strain).
+    VonMises(VonMises<T>),
+    /// Non-associative Cam-clay on Hencky elasticity (`F_E`, hardening `α`).
+    Nacc(Nacc<T>),
+    /// Snow: fixed-corotated with hardening (`F_E`, `J_P`).
+    Snow(Snow<T>),
+    /// Weakly compressible fluid (`J`; the velocity gradient when viscous).
+    JFluid(JFluid<T>),
+}
+
+/// Dispatches an [`ElastoplasticModel`] method over the plastic variants.
+macro_rules! plastic {
+    ($self:ident, $m:ident => $e:expr, $other:pat => $o:expr) => {
+        match $self {
+            Material::DruckerPrager($m) => $e,
+            Material::VonMises($m) => $e,
+            Material::Nacc($m) => $e,
+            Material::Snow($m) => $e,
+            $other => $o,
+        }
+    };
+}
+
+fn identity<T: Real, const D: usize>() -> Matrix<T, D> {
+    Matrix::<T, D>::identity()
+}
+
+impl<T: Real> Material<T> {
+    /// Scene-file model name.
+    pub fn name(&self) -> &'static str {
+        plastic!(self, m => ElastoplasticModel::<T, 3>::name(m),
+        other => match other {
+            Material::Elastic(m) => ConstitutiveModel::<T, 3>::name(m),
+            Material::JFluid(m) => m.name(),
+            _ => "",
+        })
+    }
+
+    /// The state this model stores per particle.
+    pub fn needs(&self) -> StateNeeds {
+        match self {
+            Material::Elastic(_) => StateNeeds {
+                deformation: true,
+                ..StateNeeds::default()
+            },
+            Material::JFluid(f) => StateNeeds {
+                jacobian: true,
+                velocity_gradient: f.needs_velocity_gradient(),
+                ..StateNeeds::default()
+            },
+            _ => StateNeeds {
+                deformation: true,
+                plastic: true,
+                ..StateNeeds::default()
+            },
+        }
+    }
+
+    /// Initial value of the hardening scalar.
+    pub fn initial_plastic_state(&self) -> T {
+        plastic!(self, m => ElastoplasticModel::<T, 3>::initial_plastic_state(m), _ => T::zero())
+    }
+
+    /// Dilatational wave speed for the CFL condition (at the rest state; snow's
+    /// hardening stiffens it as it compacts, see [`Snow::wave_speed_at`]).
+    pub fn wave_speed(&self, density: T) -> T {
+        plastic!(self, m => ElastoplasticModel::<T, 3>::wave_speed(m, density),
+        other => match other {
+            Material::Elastic(m) => ConstitutiveModel::<T, 3>::wave_speed(m, density),
+            Material::JFluid(m) => m.wave_speed(density),
+            _ => T::zero(),
+        })
+    }
+
+    /// Kinematic viscosity `μ/ρ` (0 for solids): bounds the explicit step by
+    /// `Δt ≤ h²/(2 d ν)`.
+    pub fn kinematic_viscosity(&self, density: T) -> T {
+        match self {
+            Material::JFluid(f) => f.viscosity / density,
+            _ => T::zero(),
+        }
+    }
+
+    /// Kirchhoff stress `τ` of a particle (scattered as `−V_p τ ∇w` in P2G).
+    #[inline]
+    pub fn kirchhoff_stress<const D: usize>(&self, s: &StateRef<'_, T, D>) -> Matrix<T, D> {
+        let f = || s.deformation.copied().unwrap_or_else(identity::<T, D>);
+        let q = s.plastic.unwrap_or_else(T::zero);
+        plastic!(self, m => m.kirchhoff_stress(&f(), q),
+        other => match other {
+            Material::Elastic(m) => m.kirchhoff_stress(&f()),
+            Material::JFluid(m) => {
+                m.kirchhoff_stress(s.jacobian.unwrap_or_else(T::one), s.velocity_gradient)
+            }
+            _ => Matrix::<T, D>::zeros(),
+        })
+    }
+
+    /// Stored (elastic) energy density per unit reference volume.
+    pub fn energy_density<const D: usize>(&self, s: &StateRef<'_, T, D>) -> T {
+        let f = || s.deformation.copied().unwrap_or_else(identity::<T, D>);
+        let q = s.plastic.unwrap_or_else(T::zero);
+        plastic!(self, m => m.energy_density(&f(), q),
+        other => match other {
+            Material::Elastic(m) => m.energy_density(&f()),
+            Material::JFluid(m) => m.energy_density(s.jacobian.unwrap_or_else(T::one)),
+            _ => T::zero(),
+        })
+    }
+
+    /// Advances the state by one step with velocity gradient `l`
+    /// (`F ← (I + Δt L) F`, plastic projection, or `J ← J(1 + Δt tr L)`), then checks
+    /// that it is finite and admissible.
+    #[inline]
+    pub fn advance<const D: usize>(
+        &self,
+        s: &mut StateMut<'_, T, D>,
+        l: &Matrix<T, D>,
+        dt: T,
+    ) -> Result<(), StateFault> {
+        if let Material::JFluid(fluid) = self {
+            // J ← J det(I + Δt L): the determinant of the same update F would get.
+            if let Some(j) = s.jacobian.as_deref_mut() {
+                *j *= determinant(&(identity::<T, D>() + l * dt));
+                if !j.is_finite_real() {
+                    return Err(StateFault::NonFinite("volume ratio J"));
+                }
+                if !fluid.is_admissible(*j) {
+                    return Err(StateFault::Inverted(j.to_f64()));
+                }
+            }
+            if let Some(g) = s.velocity_gradient.as_deref_mut() {
+                *g = *l;
+            }
+            return Ok(());
+        }
+        let Some(f) = s.deformation.as_deref_mut() else {
+            return Ok(());
+        };
+        *f = (identity::<T, D>() + l * dt) * *f;
+        if let Some(q) = s.plastic.as_deref_mut() {
+            plastic!(self, m => { m.project(f, q); }, _ => {});
+            if !q.is_finite_real() {
+                return Err(StateFault::NonFinite("plastic state"));
+            }
+        }
+        if !f.iter().all(|c| c.is_finite_real()) {
+            return Err(StateFault::NonFinite("deformation gradient"));
+        }
+        let admissible = match self {
+            Material::Elastic(m) => m.is_admissible(f),
+            // Hencky strain needs det F_E > 0; snow's fixed-corotated part does not.
+            Material::DruckerPrager(_) | Material::VonMises(_) | Material::Nacc(_) => {
+                determinant(f) > T::zero()
+            }
+            _ => true,
+        };
+        if admissible {
+            Ok(())
+        } else {
+            Err(StateFault::Inverted(determinant(f).to_f64()))
+        }
+    }
+}
