@@ -188,6 +188,9 @@ pub struct StatsRow {
     pub angular_momentum: [f64; 3],
     pub max_speed: f64,
     pub reference_updates: u64,
+    /// Gravitational potential energy `−Σ m g·x` (so that kinetic + elastic +
+    /// potential is the total mechanical energy).
+    pub potential_energy: f64,
 }
 
 /// Builds stats.csv: the header, then one row per frame. The whole text is kept so the
@@ -201,7 +204,7 @@ pub struct StatsWriter {
 /// The standard columns, in order.
 pub const STATS_HEADER: &str = "frame,time,steps,wall_seconds,particles,mass,kinetic_energy,\
 elastic_energy,momentum_x,momentum_y,momentum_z,angular_momentum_x,angular_momentum_y,\
-angular_momentum_z,max_speed,reference_updates";
+angular_momentum_z,max_speed,reference_updates,potential_energy";
 
 impl StatsWriter {
     /// `probe_names` become extra columns after the standard ones.
@@ -250,6 +253,7 @@ impl StatsWriter {
             s.push_str(&format!(",{x:e}"));
         }
         s.push_str(&format!(",{}", r.reference_updates));
+        s.push_str(&format!(",{:e}", r.potential_energy));
         for x in probe_values {
             s.push_str(&format!(",{x:e}"));
         }
@@ -366,10 +370,12 @@ mod tests {
             w.header(),
             "frame,time,steps,wall_seconds,particles,mass,kinetic_energy,elastic_energy,\
 momentum_x,momentum_y,momentum_z,angular_momentum_x,angular_momentum_y,angular_momentum_z,\
-max_speed,reference_updates"
+max_speed,reference_updates,potential_energy"
         );
         let mut w = StatsWriter::new(vec!["tip_y".into(), "left".into()]);
-        assert!(w.header().ends_with(",reference_updates,tip_y,left"));
+        assert!(w
+            .header()
+            .ends_with(",reference_updates,potential_energy,tip_y,left"));
         let r = StatsRow {
             frame: 3,
             time: 0.06,
@@ -383,10 +389,11 @@ max_speed,reference_updates"
             angular_momentum: [0.0, 0.0, 7.0],
             max_speed: 12.25,
             reference_updates: 0,
+            potential_energy: -2.0,
         };
         let row = w.row(&r, &[0.25, -1.0]);
         let fields: Vec<&str> = row.split(',').collect();
-        assert_eq!(fields.len(), 16 + 2);
+        assert_eq!(fields.len(), 17 + 2);
         assert_eq!(fields.len(), w.header().split(',').count());
         // Floats round-trip exactly.
         assert_eq!(fields[0], "3");

@@ -422,6 +422,16 @@ fn probe_values<T: Real, const D: usize>(
         .collect()
 }
 
+/// `−Σ m g·x` (zero at the origin).
+fn potential_energy<T: Real, const D: usize>(p: &Particles<T, D>, gravity: &[f64]) -> f64 {
+    let mut e = 0.0;
+    for i in 0..p.len() {
+        let gx: f64 = (0..D).map(|a| gravity[a] * p.x[i][a].to_f64()).sum();
+        e -= p.mass[i].to_f64() * gx;
+    }
+    e
+}
+
 fn frame_ply<T: Real, const D: usize>(p: &Particles<T, D>) -> Vec<u8> {
     let idx = p.index_by_id();
     let pad = |v: &Vector<T, D>| {
@@ -449,6 +459,7 @@ fn run_typed<T: Real, const D: usize, K: Kernel, L: GridLayout>(
     let stats_path = opts.out.join("stats.csv");
     let summary_path = opts.out.join("summary.json");
     let mut stats = StatsWriter::new(scene.probe.iter().map(|p| p.name.clone()).collect());
+    let gravity = s.gravity.clone();
 
     let total_frames = ((s.end_time / s.frame_dt) - 1e-9).ceil().max(1.0) as usize;
     let last_frame = opts
@@ -478,6 +489,7 @@ fn run_typed<T: Real, const D: usize, K: Kernel, L: GridLayout>(
             angular_momentum: t.angular_momentum,
             max_speed: t.max_speed,
             reference_updates: sim.reference_updates,
+            potential_energy: potential_energy(&sim.particles, &gravity),
         };
         stats.push(&row, &probe_values(scene, &sim.particles, &body_of));
         stats.write(&stats_path).map_err(io_err(&stats_path))?;

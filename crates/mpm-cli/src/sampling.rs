@@ -5,6 +5,16 @@ use std::ops::ControlFlow;
 
 use crate::scene::Shape;
 
+/// Offset (in cells) of sample `j` of `r` per axis in the regular sub-lattice:
+/// `(j + 1/2)/r`, shifted by `1/(8r)`. Unshifted, 2 (or 6, 10, …) samples per axis
+/// sit exactly on the nodes of CK-MPM's dual grid (at ±h/4): a particle on a node
+/// gives the next node a weight ~f³ ≈ 0 but a gradient ~f² — at a free surface that
+/// node then has a vanishing mass and a finite force, which blows up. The shift keeps
+/// every sample ≥ h/16 away from both the dual-grid nodes and the single-grid nodes.
+fn lattice_offset(j: usize, r: usize) -> f64 {
+    (j as f64 + 0.5 + 0.125) / r as f64
+}
+
 /// Volume carried by one particle: a cell's volume shared among `ppc` particles.
 pub fn particle_volume(dim: usize, h: f64, ppc: usize) -> f64 {
     h.powi(dim as i32) / ppc as f64
@@ -188,7 +198,7 @@ fn visit_samples(
                                 let s = [sx, sy, sz];
                                 let mut p = [0.0; 3];
                                 for a in 0..dim {
-                                    p[a] = (cell[a] as f64 + (s[a] as f64 + 0.5) / r as f64) * h;
+                                    p[a] = (cell[a] as f64 + lattice_offset(s[a], r)) * h;
                                 }
                                 if inside(shape, dim, &p, &axis) && f(p) == ControlFlow::Break(()) {
                                     return;

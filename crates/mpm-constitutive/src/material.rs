@@ -68,8 +68,10 @@ pub struct StateMut<'a, T: Real, const D: usize> {
 pub enum StateFault {
     /// A quantity is NaN or infinite.
     NonFinite(&'static str),
-    /// Inverted or degenerate: `det F` (or `J`) outside what the model can handle.
+    /// Inverted or degenerate: `det F` outside what the model can handle.
     Inverted(f64),
+    /// A fluid's volume ratio `J` reached zero or below.
+    NonPositiveVolume(f64),
 }
 
 /// The models a scene can name, dispatched per particle by `match`.
@@ -177,6 +179,30 @@ impl<T: Real> Material<T> {
         })
     }
 
+    /// The Kirchhoff stress split as `(τ_elastic, τ_viscous)`: the elastic/pressure
+    /// part and the Newtonian viscous part `J μ (L + Lᵀ)` (zero for solids and
+    /// inviscid fluids). The stepper applies the viscous part with the MLS gradient
+    /// `w D⁻¹ r` instead of `∇w`: diffusion through `∇w` acts on a node with the
+    /// node's (possibly tiny) mass and is then unstable at any practical step.
+    #[inline]
+    pub fn kirchhoff_stress_parts<const D: usize>(
+        &self,
+        s: &StateRef<'_, T, D>,
+    ) -> (Matrix<T, D>, Matrix<T, D>) {
+        match self {
+            Material::JFluid(m) if m.needs_velocity_gradient() => {
+                let j = s.jacobian.unwrap_or_else(T::one);
+                let pressure = m.kirchhoff_stress::<D>(j, None);
+                let viscous = match s.velocity_gradient {
+                    Some(l) => (l + l.transpose()) * (j * m.viscosity),
+                    None => Matrix::<T, D>::zeros(),
+                };
+                (pressure, viscous)
+            }
+            _ => (self.kirchhoff_stress(s), Matrix::<T, D>::zeros()),
+        }
+    }
+
     /// Stored (elastic) energy density per unit reference volume.
     pub fn energy_density<const D: usize>(&self, s: &StateRef<'_, T, D>) -> T {
         let f = || s.deformation.copied().unwrap_or_else(identity::<T, D>);
@@ -190,13 +216,15 @@ impl<T: Real> Material<T> {
     }
 
     /// Advances the state by one step with velocity gradient `l`
-    /// (`F ← (I + Δt L) F`, plastic projection, or `J ← J(1 + Δt tr L)`), then checks
-    /// that it is finite and admissible.
+    /// (`F ← (I + Δt L) F` and the plastic projection, or `J ← J det(I + Δt L)`),
+    /// stores `viscous_gradient` for viscous fluids, then checks that the state is
+    /// finite and admissible.
     #[inline]
     pub fn advance<const D: usize>(
         &self,
         s: &mut StateMut<'_, T, D>,
         l: &Matrix<T, D>,
+        viscous_gradient: &Matrix<T, D>,
         dt: T,
     ) -> Result<(), StateFault> {
         if let Material::JFluid(fluid) = self {
@@ -207,11 +235,11 @@ impl<T: Real> Material<T> {
                     return Err(StateFault::NonFinite("volume ratio J"));
                 }
                 if !fluid.is_admissible(*j) {
-                    return Err(StateFault::Inverted(j.to_f64()));
+                    return Err(StateFault::NonPositiveVolume(j.to_f64()));
                 }
             }
             if let Some(g) = s.velocity_gradient.as_deref_mut() {
-                *g = *l;
+                *g = *viscous_gradient;
             }
             return Ok(());
         }

@@ -62,6 +62,11 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Default for ExplicitStep
     }
 }
 
+/// Whether the scene's particles carry a velocity gradient (viscous materials).
+fn p_needs_viscous<T: Real, const D: usize>(p: &Particles<T, D>) -> bool {
+    p.needs.velocity_gradient
+}
+
 /// Particles per parallel work item in G2P.
 const CHUNK: usize = 512;
 
@@ -188,7 +193,10 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
         let gradient_form = Self::gradient_form();
         let affine = scheme.stores_affine();
         let mls = scheme.mls_force() && !gradient_form;
-        let need_moment = (affine || mls) && !gradient_form;
+        // Viscous stresses go through the MLS gradient (see
+        // `Material::kirchhoff_stress_parts`), which needs D_p⁻¹.
+        let viscous = p_needs_viscous(particles) && !gradient_form;
+        let need_moment = (affine || mls || viscous) && !gradient_form;
         let separate = scheme.needs(gradient_form).old_velocity;
         let p = particles;
         self.grid
@@ -203,11 +211,20 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
                     };
                     let c = scheme.p2g_affine(p.affine.get(i), d_inv.as_ref());
                     let model = &materials[p.material[i] as usize];
-                    let stress = model.kirchhoff_stress(&p.state(i)) * (-p.volume[i] * dt);
-                    let mls_stress = match (mls, d_inv) {
-                        (true, Some(di)) => Some(stress * di),
-                        _ => None,
+                    let scale = -p.volume[i] * dt;
+                    let (elastic, viscous_part) = if viscous {
+                        model.kirchhoff_stress_parts(&p.state(i))
+                    } else {
+                        (model.kirchhoff_stress(&p.state(i)), Matrix::<T, D>::zeros())
                     };
+                    let mut stress = elastic * scale;
+                    // The part applied with the MLS gradient `w D⁻¹ r`.
+                    let mut mls_part = viscous_part * scale;
+                    if mls {
+                        mls_part += stress;
+                        stress = Matrix::<T, D>::zeros();
+                    }
+                    let mls_stress = d_inv.map(|di| mls_part * di);
                     let m = p.mass[i];
                     let v = p.v[i];
                     for (k, s) in st.iter().enumerate().take(L::GRIDS) {
@@ -216,10 +233,10 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
                             let (w, g) = s.weight_and_gradient(&j);
                             let r = s.offset_to_node(&j, h);
                             let momentum = (v + c * r) * (w * m);
-                            let impulse = match &mls_stress {
-                                Some(ms) => ms * r * w,
-                                None => stress * g,
-                            };
+                            let mut impulse = stress * g;
+                            if let Some(ms) = &mls_stress {
+                                impulse += ms * r * w;
+                            }
                             buf.add(k, &s.node(&j), w * m, &momentum, &impulse);
                         }
                     }
@@ -263,7 +280,15 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
         let inv_h = T::one() / h;
         let gw = T::lit(L::gather_weight());
         let gradient_form = Self::gradient_form();
-        let needs = scheme.needs(gradient_form);
+        let mut needs = scheme.needs(gradient_form);
+        // Viscous stress uses the least-squares velocity gradient `B D⁻¹` (weighted by
+        // w): `Σ v_i ∇wᵀ` over-weights nodes that a particle barely touches, whose
+        // small mass makes their velocity noisy, and viscosity feeds that noise back.
+        let viscous_fit = particles.needs.velocity_gradient && !gradient_form;
+        if viscous_fit {
+            needs.affine_moment = true;
+            needs.moment_matrix = true;
+        }
         let grid = &self.grid;
         let homes = grid.home_of_sorted();
         let (lo, hi) = (params.domain_min, params.domain_max);
@@ -351,7 +376,13 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
                 });
             }
             let model = &materials[material[p] as usize];
-            match model.advance(&mut state, &up.velocity_gradient, dt) {
+            let viscous_gradient = if viscous_fit {
+                try_inverse(&g.moment_matrix).map(|d_inv| g.affine_moment * d_inv)
+            } else {
+                None
+            };
+            let viscous_gradient = viscous_gradient.unwrap_or(up.velocity_gradient);
+            match model.advance(&mut state, &up.velocity_gradient, &viscous_gradient, dt) {
                 Ok(()) => None,
                 Err(StateFault::NonFinite(quantity)) => Some(StepError::NonFinite {
                     particle: pid,
@@ -361,6 +392,11 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
                     particle: pid,
                     model: model.name(),
                     det,
+                }),
+                Err(StateFault::NonPositiveVolume(j)) => Some(StepError::Collapsed {
+                    particle: pid,
+                    model: model.name(),
+                    j,
                 }),
             }
         };

@@ -48,15 +48,27 @@ pub enum StepError {
         /// det F.
         det: f64,
     },
+    /// A fluid particle's volume ratio reached zero or below.
+    #[error(
+        "particle {particle}: volume ratio J = {j:e} ≤ 0, which the {model} model cannot handle"
+    )]
+    Collapsed {
+        /// Particle id.
+        particle: u32,
+        /// Model name.
+        model: &'static str,
+        /// The volume ratio.
+        j: f64,
+    },
 }
 
 impl StepError {
     /// The particle concerned.
     pub fn particle(&self) -> u32 {
         match self {
-            StepError::NonFinite { particle, .. } | StepError::Inverted { particle, .. } => {
-                *particle
-            }
+            StepError::NonFinite { particle, .. }
+            | StepError::Inverted { particle, .. }
+            | StepError::Collapsed { particle, .. } => *particle,
         }
     }
 }
