@@ -9,6 +9,8 @@
 
 pub mod reference;
 pub mod simulation;
+pub mod updated_lagrangian;
 
-pub use reference::{Eulerian, ReferenceConfig};
+pub use reference::{Adaptive, Eulerian, Reference, ReferenceConfig, TotalLagrangian};
 pub use simulation::{Simulation, SimulationError, TimeStepPolicy};
+pub use updated_lagrangian::{ReferenceState, UpdatedLagrangianStepper};

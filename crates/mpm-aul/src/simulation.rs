@@ -1,8 +1,10 @@
 //! The time-stepping driver: particles, materials, transfer scheme, reference
 //! configuration and the stepper, advanced to requested times.
 
-use crate::reference::{Eulerian, ReferenceConfig};
+use crate::reference::Reference;
+use crate::updated_lagrangian::UpdatedLagrangianStepper;
 use mpm_constitutive::Material;
+use mpm_grid::BlockSparseGrid;
 use mpm_grid::{Collider, GridLayout};
 use mpm_kernels::Kernel;
 use mpm_math::{Real, Vector};
@@ -52,11 +54,11 @@ pub struct Simulation<T: Real, const D: usize, K: Kernel, L: GridLayout> {
     /// Steps taken.
     pub steps: u64,
     /// Reference configuration.
-    pub reference: Eulerian,
+    pub reference: Reference,
     /// Reference updates counted so far (0 for Eulerian).
     pub reference_updates: u64,
-    /// The stepper (grid and work buffers).
-    pub stepper: ExplicitStepper<T, D, K, L>,
+    /// The stepper (grid and work buffers) the reference needs.
+    pub stepper: Stepper<T, D, K, L>,
     wave_speed: T,
     kinematic_viscosity: T,
 }
@@ -102,9 +104,9 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Simulation<T, D, K, L> {
             time_step,
             time: 0.0,
             steps: 0,
-            reference: Eulerian,
+            reference: Reference::Eulerian(crate::Eulerian),
             reference_updates: 0,
-            stepper: ExplicitStepper::new(),
+            stepper: Stepper::Eulerian(ExplicitStepper::new()),
             wave_speed,
             kinematic_viscosity,
         }
@@ -144,12 +146,22 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Simulation<T, D, K, L> {
         let dt = self.next_dt().min(max_dt);
         self.params.dt = T::lit(dt);
         self.params.time = T::lit(self.time);
-        let result = self.stepper.step(
-            &mut self.particles,
-            &self.materials,
-            &self.transfer,
-            &self.params,
-        );
+        let result = match &mut self.stepper {
+            Stepper::Eulerian(st) => st.step(
+                &mut self.particles,
+                &self.materials,
+                &self.transfer,
+                &self.params,
+            ),
+            Stepper::Lagrangian(st) => st
+                .step(
+                    &mut self.particles,
+                    &self.materials,
+                    &self.reference,
+                    &self.params,
+                )
+                .map(|_| ()),
+        };
         self.steps += 1;
         if let Err(source) = result {
             return Err(SimulationError {
@@ -159,8 +171,9 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Simulation<T, D, K, L> {
             });
         }
         self.time += dt;
-        if self.reference.counts_updates() && self.reference.should_rebuild(&[]) {
-            self.reference_updates += 1;
+        if let Stepper::Lagrangian(st) = &self.stepper {
+            // The initial build is not an update.
+            self.reference_updates = st.rebuilds.saturating_sub(1);
         }
         Ok(dt)
     }
@@ -190,6 +203,64 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Simulation<T, D, K, L> {
 
     /// Accumulated time per phase.
     pub fn phase_times(&self) -> PhaseTimes {
-        self.stepper.times
+        match &self.stepper {
+            Stepper::Eulerian(st) => st.times,
+            Stepper::Lagrangian(st) => st.times,
+        }
+    }
+
+    /// Uses `reference` from now on (call before the first step). Total-Lagrangian and
+    /// adaptive references run the MLS-A-ULMPM step ([`UpdatedLagrangianStepper`]).
+    pub fn set_reference(&mut self, reference: Reference) {
+        self.reference = reference;
+        self.stepper = match reference {
+            Reference::Eulerian(_) => Stepper::Eulerian(ExplicitStepper::new()),
+            _ => Stepper::Lagrangian(UpdatedLagrangianStepper::new()),
+        };
+    }
+
+    /// The grid in use.
+    pub fn grid(&self) -> &BlockSparseGrid<T, D> {
+        match &self.stepper {
+            Stepper::Eulerian(st) => &st.grid,
+            Stepper::Lagrangian(st) => &st.grid,
+        }
+    }
+
+    /// Wall seconds spent rebuilding the reference (A-UL), 0 for Eulerian.
+    pub fn reference_update_seconds(&self) -> f64 {
+        match &self.stepper {
+            Stepper::Eulerian(_) => 0.0,
+            Stepper::Lagrangian(st) => st.rebuild_seconds,
+        }
+    }
+
+    /// Bytes of particle state per particle, reference state included.
+    pub fn bytes_per_particle(&self) -> usize {
+        self.particles.bytes_per_particle()
+            + match &self.stepper {
+                Stepper::Eulerian(_) => 0,
+                Stepper::Lagrangian(_) => {
+                    UpdatedLagrangianStepper::<T, D, K, L>::bytes_per_particle()
+                }
+            }
+    }
+}
+
+/// The stepper a reference configuration needs.
+pub enum Stepper<T: Real, const D: usize, K: Kernel, L: GridLayout> {
+    /// Eulerian MPM: the explicit step of `mpm-transfer`, nothing stored.
+    Eulerian(ExplicitStepper<T, D, K, L>),
+    /// Total-Lagrangian or adaptive: MLS-A-ULMPM with stored reference state.
+    Lagrangian(UpdatedLagrangianStepper<T, D, K, L>),
+}
+
+impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Simulation<T, D, K, L> {
+    /// Weight evaluations so far (A-UL; Eulerian evaluates every particle every step).
+    pub fn weight_evaluations(&self) -> u64 {
+        match &self.stepper {
+            Stepper::Eulerian(_) => self.steps * self.particles.len() as u64,
+            Stepper::Lagrangian(st) => st.weight_evaluations,
+        }
     }
 }

@@ -6,9 +6,9 @@ use crate::output::{ply_bytes, write_atomic, StatsRow, StatsWriter};
 use crate::sampling::{particle_volume, sample_body};
 use crate::scene::{
     Boundary, ColliderSpec, GridKind, Kernel as KernelKind, MaterialSpec, ModelKind, Precision,
-    Reduction, Scene, TimeStep, TransferKind,
+    Reduction, ReferenceKind, Scene, TimeStep, TransferKind,
 };
-use mpm_aul::{Simulation, TimeStepPolicy};
+use mpm_aul::{Adaptive, Eulerian, Reference, Simulation, TimeStepPolicy, TotalLagrangian};
 use mpm_constitutive::{
     ConstitutiveError, DruckerPrager, ElasticModel, FixedCorotated, HenckyElasticity, JFluid, Lame,
     Material, Nacc, NeoHookean, Snow, StateNeeds, VonMises,
@@ -372,7 +372,7 @@ pub fn build_simulation<T: Real, const D: usize, K: Kernel, L: GridLayout>(
         TimeStep::Auto => TimeStepPolicy::Cfl(s.cfl),
         TimeStep::Fixed(dt) => TimeStepPolicy::Fixed(dt),
     };
-    let sim = Simulation::new(
+    let mut sim = Simulation::new(
         particles,
         materials,
         densities,
@@ -383,6 +383,14 @@ pub fn build_simulation<T: Real, const D: usize, K: Kernel, L: GridLayout>(
         (vector(&s.domain_min), vector(&s.domain_max)),
         policy,
     );
+    sim.set_reference(match s.reference {
+        ReferenceKind::Eulerian => Reference::Eulerian(Eulerian),
+        ReferenceKind::TotalLagrangian => Reference::TotalLagrangian(TotalLagrangian),
+        ReferenceKind::Adaptive => Reference::Adaptive(Adaptive {
+            epsilon: s.adaptive_epsilon,
+            eta: s.adaptive_eta,
+        }),
+    });
     Ok((sim, body_of))
 }
 
@@ -584,15 +592,21 @@ fn summary_json<T: Real, const D: usize, K: Kernel, L: GridLayout>(
         },
         "threads": opts.threads,
         "particles": sim.particles.len(),
-        "bytes_per_particle": sim.particles.bytes_per_particle(),
+        "bytes_per_particle": sim.bytes_per_particle(),
+        "reference": {
+            "kind": mpm_aul::ReferenceConfig::name(&sim.reference),
+            "updates": sim.reference_updates,
+            "update_seconds": sim.reference_update_seconds(),
+            "weight_evaluations": sim.weight_evaluations(),
+        },
         "grid": {
             "kernel": K::NAME,
             "layout": L::NAME,
             "grids": L::GRIDS,
             "nodes_per_particle": nodes_per_particle,
-            "active_nodes": sim.stepper.grid.node_count(),
-            "active_blocks": sim.stepper.grid.block_count(),
-            "bytes": sim.stepper.grid.heap_bytes(),
+            "active_nodes": sim.grid().node_count(),
+            "active_blocks": sim.grid().block_count(),
+            "bytes": sim.grid().heap_bytes(),
         },
         "frames_written": frames + 1,
         "steps": sim.steps,

@@ -1024,15 +1024,46 @@ impl Scene {
                 "flip_blend must lie in [0, 1]",
             ));
         }
-        c.positive("simulation.adaptive_epsilon", s.adaptive_epsilon)?;
-        c.positive("simulation.adaptive_eta", s.adaptive_eta)?;
-        match s.reference {
-            ReferenceKind::Eulerian => {}
-            ReferenceKind::TotalLagrangian => {
-                return Err(c.not_supported("simulation.reference", "total-lagrangian"))
+        if !(s.adaptive_epsilon >= 0.0 && s.adaptive_epsilon.is_finite()) {
+            return Err(c.err(
+                "simulation.adaptive_epsilon",
+                format!("{} is out of range", s.adaptive_epsilon),
+                "adaptive_epsilon must be ≥ 0 (0 rebuilds the reference every step)",
+            ));
+        }
+        if !(s.adaptive_eta > 0.0 && s.adaptive_eta <= 1.0) {
+            return Err(c.err(
+                "simulation.adaptive_eta",
+                format!("{} is out of range", s.adaptive_eta),
+                "adaptive_eta is a fraction of particles: 0 < adaptive_eta ≤ 1",
+            ));
+        }
+        if s.reference != ReferenceKind::Eulerian {
+            let name = if s.reference == ReferenceKind::Adaptive {
+                "adaptive"
+            } else {
+                "total-lagrangian"
+            };
+            if !matches!(s.transfer, TransferKind::Apic | TransferKind::Mls) {
+                return Err(c.err(
+                    "simulation.transfer",
+                    format!("reference \"{name}\" runs MLS-A-ULMPM; its PIC/FLIP (kernel-MPM, paper Appendix B) variant is not supported yet"),
+                    "Use transfer = \"mls\" or \"apic\" with this reference",
+                ));
             }
-            ReferenceKind::Adaptive => {
-                return Err(c.not_supported("simulation.reference", "adaptive"))
+            if matches!(s.kernel, Kernel::Linear | Kernel::Compact) && s.grid == GridKind::Single {
+                return Err(c.err(
+                    "simulation.grid",
+                    format!("reference \"{name}\" needs K_p = (Σ W r rᵀ)⁻¹, which is singular for a two-node stencil on a single grid"),
+                    "Use kernel = \"quadratic\" or \"cubic\", or the compact kernel with grid = \"dual\"",
+                ));
+            }
+            if self.body.len() > 1 {
+                return Err(c.err(
+                    "simulation.reference",
+                    format!("reference \"{name}\" with {} bodies is not supported yet: bodies share one reference map and would not interact until a rebuild", self.body.len()),
+                    "Use one [[body]] or reference = \"eulerian\"",
+                ));
             }
         }
         match s.integrator {
@@ -1773,15 +1804,28 @@ normal = [0.0, 1.0]
     #[test]
     fn unsupported_features_say_so() {
         let ns = "not supported yet";
+        // FULL_3D has three bodies and a FLIP transfer.
         bad(
             FULL_3D,
             &["simulation.reference=adaptive"],
-            &["simulation.reference", "adaptive", ns],
+            &["simulation.transfer", "adaptive", ns],
         );
         bad(
             FULL_3D,
-            &["simulation.reference=total-lagrangian"],
-            &["simulation.reference", ns],
+            &[
+                "simulation.reference=total-lagrangian",
+                "simulation.transfer=mls",
+            ],
+            &["simulation.reference", "3 bodies", ns],
+        );
+        bad(
+            FULL_3D,
+            &[
+                "simulation.reference=total-lagrangian",
+                "simulation.transfer=mls",
+                "simulation.kernel=linear",
+            ],
+            &["simulation.grid", "singular"],
         );
         bad(
             FULL_3D,

@@ -28,6 +28,7 @@ pub struct LocalBuffer<'a, T: Real, const D: usize> {
     mass: &'a mut [T],
     momentum: &'a mut [Vector<T, D>],
     impulse: &'a mut [Vector<T, D>],
+    position: &'a mut [Vector<T, D>],
 }
 
 impl<T: Real, const D: usize> LocalBuffer<'_, T, D> {
@@ -63,6 +64,35 @@ impl<T: Real, const D: usize> LocalBuffer<'_, T, D> {
             self.momentum[i] += momentum;
             self.impulse[i] += impulse;
         }
+    }
+}
+
+impl<T: Real, const D: usize> LocalBuffer<'_, T, D> {
+    /// Adds a mass-weighted position `m w x_p` (for the current nodal positions
+    /// `q_i = Σ m w x_p / m_i` of updated-Lagrangian MPM). Ignored unless the scatter
+    /// keeps positions.
+    #[inline(always)]
+    pub fn add_position(&mut self, grid: usize, node: &[i32; D], weighted_position: &Vector<T, D>) {
+        if !self.position.is_empty() {
+            let i = self.local_index(grid, node);
+            self.position[i] += weighted_position;
+        }
+    }
+}
+
+/// Clears `v` and fills it with `n` copies of `value` (keeping its capacity).
+fn refill<X: Clone>(v: &mut Vec<X>, n: usize, value: X) {
+    v.clear();
+    v.resize(n, value);
+}
+
+/// `v` in chunks of `chunk`, or `count` empty slices when `v` is empty (an absent
+/// optional channel), so that it can be zipped with the present ones.
+fn optional_chunks<X>(v: &mut [X], chunk: usize, count: usize) -> Vec<&mut [X]> {
+    if v.is_empty() {
+        (0..count).map(|_| Default::default()).collect()
+    } else {
+        v.chunks_mut(chunk).collect()
     }
 }
 
@@ -121,6 +151,8 @@ pub struct BlockSparseGrid<T: Real, const D: usize> {
     pub momentum: Vec<Vector<T, D>>,
     /// Nodal force impulse `Δt·f` when the scatter keeps it apart (else empty).
     pub impulse: Vec<Vector<T, D>>,
+    /// `Σ m w x_p` per node when the scatter keeps positions (else empty).
+    pub position_moment: Vec<Vector<T, D>>,
     /// Nodal velocity after the grid update.
     pub velocity: Vec<Vector<T, D>>,
     /// Nodal velocity before forces (kept only when a FLIP blend needs it).
@@ -129,6 +161,7 @@ pub struct BlockSparseGrid<T: Real, const D: usize> {
     scratch_mass: Vec<T>,
     scratch_momentum: Vec<Vector<T, D>>,
     scratch_impulse: Vec<Vector<T, D>>,
+    scratch_position: Vec<Vector<T, D>>,
     keys: Vec<u32>,
     counts: Vec<usize>,
     sorted_home: Vec<u32>,
@@ -210,6 +243,8 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
             + self.scratch_mass.capacity() * size_of::<T>()
             + (self.scratch_momentum.capacity()
                 + self.scratch_impulse.capacity()
+                + self.scratch_position.capacity()
+                + self.position_moment.capacity()
                 + self.impulse.capacity())
                 * v
             + (self.blocks.capacity() + self.home_blocks.capacity()) * size_of::<[i32; D]>()
@@ -335,8 +370,10 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
     /// grid); then the buffers are summed into `mass` and `momentum` in a fixed order.
     ///
     /// With `separate_impulse` the force impulses go to [`Self::impulse`] instead of
-    /// being added to the momentum (FLIP needs the pre-force velocity).
-    pub fn scatter<F>(&mut self, ext: usize, separate_impulse: bool, f: F)
+    /// being added to the momentum (FLIP needs the pre-force velocity). With
+    /// `positions`, [`LocalBuffer::add_position`] is summed into
+    /// [`Self::position_moment`].
+    pub fn scatter<F>(&mut self, ext: usize, separate_impulse: bool, positions: bool, f: F)
     where
         F: Fn(usize, std::ops::Range<usize>, &mut LocalBuffer<'_, T, D>) + Sync,
     {
@@ -344,34 +381,35 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
         let per_grid = ext.pow(D as u32);
         let per_home = per_grid * self.grids;
         let n_home = self.home_blocks.len();
+        let zero = Vector::<T, D>::zeros();
         self.scratch_ext = ext;
-        self.scratch_mass.clear();
-        self.scratch_mass.resize(n_home * per_home, T::zero());
-        self.scratch_momentum.clear();
-        self.scratch_momentum
-            .resize(n_home * per_home, Vector::<T, D>::zeros());
-        self.scratch_impulse.clear();
-        if separate_impulse {
-            self.scratch_impulse
-                .resize(n_home * per_home, Vector::<T, D>::zeros());
-        }
+        refill(&mut self.scratch_mass, n_home * per_home, T::zero());
+        refill(&mut self.scratch_momentum, n_home * per_home, zero);
+        refill(
+            &mut self.scratch_impulse,
+            if separate_impulse {
+                n_home * per_home
+            } else {
+                0
+            },
+            zero,
+        );
+        refill(
+            &mut self.scratch_position,
+            if positions { n_home * per_home } else { 0 },
+            zero,
+        );
         let home_blocks = &self.home_blocks;
         let home_ranges = &self.home_ranges;
-        // Empty impulse buffers still need one (empty) chunk per home block.
-        let impulse_chunk = if separate_impulse { per_home } else { 0 };
-        let mut empty: Vec<&mut [Vector<T, D>]> = Vec::new();
-        let impulse_chunks: Vec<&mut [Vector<T, D>]> = if separate_impulse {
-            self.scratch_impulse.chunks_mut(impulse_chunk).collect()
-        } else {
-            empty.resize_with(n_home, || &mut []);
-            empty
-        };
-        self.scratch_mass
-            .par_chunks_mut(per_home)
-            .zip(self.scratch_momentum.par_chunks_mut(per_home))
-            .zip(impulse_chunks.into_par_iter())
+        (
+            self.scratch_mass.par_chunks_mut(per_home),
+            self.scratch_momentum.par_chunks_mut(per_home),
+            optional_chunks(&mut self.scratch_impulse, per_home, n_home).into_par_iter(),
+            optional_chunks(&mut self.scratch_position, per_home, n_home).into_par_iter(),
+        )
+            .into_par_iter()
             .enumerate()
-            .for_each(|(h, ((m, p), imp))| {
+            .for_each(|(h, (m, p, imp, pos))| {
                 let mut buf = LocalBuffer {
                     origin: home_blocks[h].map(|v| v * BLOCK),
                     ext,
@@ -379,6 +417,7 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
                     mass: m,
                     momentum: p,
                     impulse: imp,
+                    position: pos,
                 };
                 let (s, e) = home_ranges[h];
                 f(h, s..e, &mut buf);
@@ -391,38 +430,38 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
     fn reduce(&mut self) {
         let npb = self.nodes_per_block;
         let total = self.node_count();
-        self.mass.clear();
-        self.mass.resize(total, T::zero());
-        self.momentum.clear();
-        self.momentum.resize(total, Vector::<T, D>::zeros());
+        let zero = Vector::<T, D>::zeros();
         let separate = !self.scratch_impulse.is_empty();
-        self.impulse.clear();
-        if separate {
-            self.impulse.resize(total, Vector::<T, D>::zeros());
-        }
+        let positions = !self.scratch_position.is_empty();
+        refill(&mut self.mass, total, T::zero());
+        refill(&mut self.momentum, total, zero);
+        refill(&mut self.impulse, if separate { total } else { 0 }, zero);
+        refill(
+            &mut self.position_moment,
+            if positions { total } else { 0 },
+            zero,
+        );
         let ext = self.scratch_ext;
         let per_grid = ext.pow(D as u32);
         let per_home = per_grid * self.grids;
         let n_blocks = self.blocks.len();
-        let (sm, sp, si) = (
+        let n_chunks = self.grids * n_blocks;
+        let (sm, sp, si, sx) = (
             &self.scratch_mass,
             &self.scratch_momentum,
             &self.scratch_impulse,
+            &self.scratch_position,
         );
         let sources = &self.grid_sources;
-        let mut empty: Vec<&mut [Vector<T, D>]> = Vec::new();
-        let impulse_chunks: Vec<&mut [Vector<T, D>]> = if separate {
-            self.impulse.chunks_mut(npb).collect()
-        } else {
-            empty.resize_with(self.grids * n_blocks, || &mut []);
-            empty
-        };
-        self.mass
-            .par_chunks_mut(npb)
-            .zip(self.momentum.par_chunks_mut(npb))
-            .zip(impulse_chunks.into_par_iter())
+        (
+            self.mass.par_chunks_mut(npb),
+            self.momentum.par_chunks_mut(npb),
+            optional_chunks(&mut self.impulse, npb, n_chunks).into_par_iter(),
+            optional_chunks(&mut self.position_moment, npb, n_chunks).into_par_iter(),
+        )
+            .into_par_iter()
             .enumerate()
-            .for_each(|(chunk, ((m, p), imp))| {
+            .for_each(|(chunk, (m, p, imp, pos))| {
                 let grid = chunk / n_blocks;
                 let block = chunk % n_blocks;
                 for code in 0..(1usize << D) {
@@ -432,7 +471,7 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
                     }
                     let d = delta::<D>(code);
                     let base = h as usize * per_home + grid * per_grid;
-                    for (l, (ml, pl)) in m.iter_mut().zip(p.iter_mut()).enumerate() {
+                    for l in 0..npb {
                         // Node l of block G is at 4δ + l in the home block's buffer.
                         let mut idx = 0usize;
                         let mut stride = 1usize;
@@ -449,10 +488,13 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
                             stride *= ext;
                         }
                         if inside {
-                            *ml += sm[base + idx];
-                            *pl += sp[base + idx];
+                            m[l] += sm[base + idx];
+                            p[l] += sp[base + idx];
                             if separate {
                                 imp[l] += si[base + idx];
+                            }
+                            if positions {
+                                pos[l] += sx[base + idx];
                             }
                         }
                     }
@@ -460,22 +502,22 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
             });
     }
 
-    /// Grid update: `f(grid, node_index, mass, momentum + impulse) -> velocity`, in
-    /// parallel over blocks. When the impulse was kept apart, `velocity_old` receives
-    /// the pre-force velocity `momentum/mass` (for FLIP).
+    /// Grid update: `f(grid, node_index, mass, momentum + impulse, position_moment)
+    /// -> velocity`, in parallel over blocks (`position_moment` is zero unless the
+    /// scatter kept positions). When the impulse was kept apart, `velocity_old`
+    /// receives the pre-force velocity `momentum/mass` (for FLIP).
     pub fn update<F>(&mut self, f: F)
     where
-        F: Fn(usize, [i32; D], T, &Vector<T, D>) -> Vector<T, D> + Sync,
+        F: Fn(usize, [i32; D], T, &Vector<T, D>, &Vector<T, D>) -> Vector<T, D> + Sync,
     {
         let keep_old = !self.impulse.is_empty();
         let npb = self.nodes_per_block;
         let n_blocks = self.blocks.len();
         let total = self.node_count();
-        self.velocity.clear();
-        self.velocity.resize(total, Vector::<T, D>::zeros());
+        let zero = Vector::<T, D>::zeros();
+        refill(&mut self.velocity, total, zero);
         if keep_old {
-            self.velocity_old.clear();
-            self.velocity_old.resize(total, Vector::<T, D>::zeros());
+            refill(&mut self.velocity_old, total, zero);
             self.velocity_old
                 .par_iter_mut()
                 .zip(self.mass.par_iter().zip(self.momentum.par_iter()))
@@ -488,7 +530,12 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
             self.velocity_old.clear();
         }
         let blocks = &self.blocks;
-        let (mass, momentum, impulse) = (&self.mass, &self.momentum, &self.impulse);
+        let (mass, momentum, impulse, position) = (
+            &self.mass,
+            &self.momentum,
+            &self.impulse,
+            &self.position_moment,
+        );
         self.velocity
             .par_chunks_mut(npb)
             .enumerate()
@@ -510,7 +557,8 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
                         } else {
                             momentum[first + l]
                         };
-                        *vl = f(grid, node, m, &total);
+                        let q = position.get(first + l).unwrap_or(&zero);
+                        *vl = f(grid, node, m, &total, q);
                     }
                 }
             });
@@ -581,7 +629,7 @@ mod tests {
         let cells: Vec<[i32; 2]> = vec![[0, 0], [4, 0]];
         let mut g = BlockSparseGrid::<f64, 2>::new(2);
         g.bin(&cells);
-        g.scatter(6, false, |h, _, buf| {
+        g.scatter(6, false, false, |h, _, buf| {
             let o = if h == 0 { [0, 0] } else { [4, 0] };
             for dx in 0..6 {
                 for dy in 0..6 {

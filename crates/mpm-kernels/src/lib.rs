@@ -58,6 +58,13 @@ pub trait Kernel: Copy + Default + Send + Sync + std::fmt::Debug + 'static {
     /// Its derivative `N'(u)`.
     fn derivative<T: Real>(u: T) -> T;
 
+    /// First node of the stencil of a particle at `xg` (cell units on this grid):
+    /// `floor(xg − (NODES_PER_AXIS − 2)/2)`, the node [`Self::weights_1d`] starts at.
+    #[inline(always)]
+    fn base_node<T: Real>(xg: T) -> i32 {
+        (xg - T::lit((Self::NODES_PER_AXIS as f64 - 2.0) * 0.5)).floor_index()
+    }
+
     /// Weights of the nodes around a particle at `xg` in cell units on this grid
     /// (`xg = x_p/h − grid offset`). The first node is
     /// `floor(xg − (NODES_PER_AXIS − 2)/2)`, so the stencil is centred on the particle.

@@ -199,8 +199,11 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
         let need_moment = (affine || mls || viscous) && !gradient_form;
         let separate = scheme.needs(gradient_form).old_velocity;
         let p = particles;
-        self.grid
-            .scatter(Self::buffer_extent(), separate, |_home, range, buf| {
+        self.grid.scatter(
+            Self::buffer_extent(),
+            separate,
+            false,
+            |_home, range, buf| {
                 for i in range {
                     let x = p.x[i];
                     let st = stencils::<T, D, K, L>(&x, inv_h);
@@ -241,7 +244,8 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
                         }
                     }
                 }
-            });
+            },
+        );
     }
 
     /// Grid update: `v_i = (m_i v_i + Δt f_i)/m_i + Δt g`, then the colliders at the
@@ -252,7 +256,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
         let g = params.gravity;
         let t = params.time;
         let colliders = &params.colliders;
-        self.grid.update(|k, node, m, p| {
+        self.grid.update(|k, node, m, p, _| {
             let mut v = p / m + g * dt;
             if !colliders.is_empty() {
                 let off = T::lit(L::offset(k));

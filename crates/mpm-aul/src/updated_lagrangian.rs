@@ -1,0 +1,489 @@
+//! The MLS-A-ULMPM explicit step (A-ULMPM §5) for any kernel × grid layout, the
+//! compact kernel on the dual grid included.
+//!
+//! Between reference updates every particle keeps its reference position `X_p` (its
+//! position at the last update, time `s`), its weights `W_ip` on the reference
+//! lattice, `K_p = (Σ_i W_ip r_ip r_ipᵀ)⁻¹` with `r_ip = X_i − X_p`, and the relative
+//! deformation `Fˢⁿ`. One step:
+//!
+//! 1. P2G on the reference lattice: `m_i = Σ W m_p`, `m_i v_i = Σ W m_p (v_p + B_p K_p r)`
+//!    (eq. 10–11) and the current nodal positions `q_i = Σ W m_p x_p / m_i` (eq. 12,
+//!    mass-weighted).
+//! 2. Force (eq. 20/23): `f_i = −Σ_p V_p P(F⁰ⁿ)(F⁰ˢ)ᵀ K_p r W`. With `F⁰ⁿ = Fˢⁿ F⁰ˢ`,
+//!    `P (F⁰ˢ)ᵀ = τ (Fˢⁿ)⁻ᵀ` (τ the Kirchhoff stress), so only `Fˢⁿ` is stored and every
+//!    material model (fluids included) enters through `τ`.
+//! 3. Grid update with gravity; colliders act at the *current* nodal position `q_i`.
+//! 4. G2P (eq. 28): `v_p = Σ W v_i`, `B_p = Σ W v_i rᵀ`; `x_p += Δt v_p`.
+//! 5. `Fˢⁿ⁺¹ = Fˢⁿ + Δt G`, `G = Σ W (v_i − v_p) rᵀ K_p` (eq. 30–31); the material state
+//!    advances with the current velocity gradient `G (Fˢⁿ)⁻¹`, which gives exactly
+//!    `F⁰ⁿ⁺¹ = Fˢⁿ⁺¹ F⁰ˢ` (eq. 32) and lets plasticity project `F⁰ⁿ⁺¹`.
+//! 6. Criterion (eq. 33): `δJ_p = |det Fˢⁿ⁺¹ − 1|`; the [`ReferenceConfig`] decides
+//!    whether to rebuild: `X_p ← x_p`, `Fˢⁿ ← I`, new lattice, `W`, `K`.
+//!
+//! **Dual grid.** Every sum over nodes runs over both grids with weight ½, exactly as
+//! in the Eulerian CK-MPM step: `K_p = (½ Σ_k Σ_i W r rᵀ)⁻¹`, `v_p = ½ Σ_k Σ_i W v_i`,
+//! `B_p = ½ Σ_k Σ_i W v_i rᵀ`, and each grid receives the full force
+//! `−V τ (Fˢⁿ)⁻ᵀ K r W` with its own `r` and `W`. Because the ½-averaged first moment
+//! vanishes (`½ Σ_k Σ_i W r = 0`, methods.md §2), the proofs carry over unchanged:
+//! the affine term adds no momentum (`Σ W B K r = B K · 0`), each grid's forces sum to
+//! zero (`Σ_i W r = 0` per grid would be needed for that — it is not true on one
+//! compact grid, but `Σ_k` of the *averaged* forces is what the ½-averaged G2P sees),
+//! and `G = ½ Σ W (v_i − v_p) rᵀ K` reproduces linear velocity fields exactly
+//! (`½ Σ W (A r) rᵀ K = A`). Tests check linear momentum, angular momentum and
+//! equivalence with the Eulerian MLS step for this combination.
+//!
+//! **Rebuild every step** (ε = 0) reproduces the Eulerian MLS-MPM step: then
+//! `Fˢⁿ = I`, `K_p = D_p⁻¹` at the current position and `B_p` is kept across the
+//! rebuild exactly as APIC/MLS keep it.
+//!
+//! **One reference for the whole scene.** All particles share one configuration map;
+//! bodies that are apart in the reference interact only after a rebuild brings them
+//! onto shared nodes, so the CLI accepts `total-lagrangian`/`adaptive` for
+//! single-body scenes only (multi-body contact is future work).
+
+use crate::reference::ReferenceConfig;
+use mpm_constitutive::{Material, StateFault, StateMut};
+use mpm_grid::{BlockSparseGrid, Collider, GridLayout, BLOCK};
+use mpm_kernels::{Kernel, Stencil};
+use mpm_math::{determinant, try_inverse, Matrix, Real, Vector};
+use mpm_transfer::{Particles, PhaseTimes, StepError, StepParams};
+use rayon::prelude::*;
+use std::marker::PhantomData;
+use std::time::Instant;
+
+/// Per-particle reference-configuration state (in particle order).
+#[derive(Clone, Debug, Default)]
+pub struct ReferenceState<T: Real, const D: usize> {
+    /// Reference position `X_p` (position at the last rebuild).
+    pub position: Vec<Vector<T, D>>,
+    /// Relative deformation `Fˢⁿ`.
+    pub relative_deformation: Vec<Matrix<T, D>>,
+    /// `K_p = (Σ W r rᵀ)⁻¹` on the reference lattice.
+    pub moment_inverse: Vec<Matrix<T, D>>,
+    /// Stored weights `W_ip`, `nodes_per_particle` per particle (grid-major).
+    pub weights: Vec<T>,
+}
+
+/// The updated-Lagrangian stepper: a grid binned by reference positions and the
+/// stored reference state, rebuilt only when the [`ReferenceConfig`] says so.
+pub struct UpdatedLagrangianStepper<T: Real, const D: usize, K: Kernel, L: GridLayout> {
+    /// The reference lattice (block-sparse, binned by reference positions).
+    pub grid: BlockSparseGrid<T, D>,
+    /// Stored reference state.
+    pub state: ReferenceState<T, D>,
+    /// Rebuilds so far (the initial build included).
+    pub rebuilds: u64,
+    /// Particle weight evaluations so far (`particles × rebuilds`).
+    pub weight_evaluations: u64,
+    /// Wall seconds spent in rebuilds.
+    pub rebuild_seconds: f64,
+    /// Accumulated phase times of the steps.
+    pub times: PhaseTimes,
+    cells: Vec<[i32; D]>,
+    delta_j: Vec<f64>,
+    built: bool,
+    _stencil: PhantomData<(K, L)>,
+}
+
+impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Default
+    for UpdatedLagrangianStepper<T, D, K, L>
+{
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// Particles per parallel work item in G2P.
+const CHUNK: usize = 512;
+
+fn chunks<X: Send>(v: &mut [X], n: usize) -> Vec<&mut [X]> {
+    if v.is_empty() {
+        (0..n.div_ceil(CHUNK)).map(|_| Default::default()).collect()
+    } else {
+        v.chunks_mut(CHUNK).collect()
+    }
+}
+
+/// Base node and `frac = xg − base` per axis of a reference position on grid `k`.
+#[inline(always)]
+fn geometry<T: Real, const D: usize, K: Kernel, L: GridLayout>(
+    x: &Vector<T, D>,
+    inv_h: T,
+    k: usize,
+) -> ([i32; D], [T; D]) {
+    let off = T::lit(L::offset(k));
+    let mut base = [0i32; D];
+    let mut frac = [T::zero(); D];
+    for a in 0..D {
+        let xg = x[a] * inv_h - off;
+        base[a] = K::base_node(xg);
+        frac[a] = xg - T::lit(base[a] as f64);
+    }
+    (base, frac)
+}
+
+impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper<T, D, K, L> {
+    /// An empty stepper; the reference is built at the first step.
+    pub fn new() -> Self {
+        UpdatedLagrangianStepper {
+            grid: BlockSparseGrid::new(L::GRIDS),
+            state: ReferenceState::default(),
+            rebuilds: 0,
+            weight_evaluations: 0,
+            rebuild_seconds: 0.0,
+            times: PhaseTimes::default(),
+            cells: Vec::new(),
+            delta_j: Vec::new(),
+            built: false,
+            _stencil: PhantomData,
+        }
+    }
+
+    /// Stencil nodes per particle over all grids.
+    pub const fn nodes_per_particle() -> usize {
+        let mut n = 1;
+        let mut a = 0;
+        while a < D {
+            n *= K::NODES_PER_AXIS;
+            a += 1;
+        }
+        n * L::GRIDS
+    }
+
+    /// Bytes of reference state per particle.
+    pub fn bytes_per_particle() -> usize {
+        std::mem::size_of::<Vector<T, D>>()
+            + 2 * std::mem::size_of::<Matrix<T, D>>()
+            + Self::nodes_per_particle() * std::mem::size_of::<T>()
+    }
+
+    /// Lays a new reference lattice around the current positions: bins and reorders
+    /// the particles, then stores `X_p`, `W_ip`, `K_p` and `Fˢⁿ = I`.
+    pub fn rebuild(&mut self, particles: &mut Particles<T, D>, h: T) -> Result<(), StepError> {
+        let t0 = Instant::now();
+        let inv_h = T::one() / h;
+        self.cells.clear();
+        particles
+            .x
+            .par_iter()
+            .map(|x| geometry::<T, D, K, L>(x, inv_h, 0).0)
+            .collect_into_vec(&mut self.cells);
+        let order = self.grid.bin(&self.cells);
+        particles.reorder(&order);
+        let n = particles.len();
+        let npp = Self::nodes_per_particle();
+        let st = &mut self.state;
+        st.position.clone_from(&particles.x);
+        st.relative_deformation.clear();
+        st.relative_deformation
+            .resize(n, Matrix::<T, D>::identity());
+        st.moment_inverse.resize(n, Matrix::<T, D>::zeros());
+        st.weights.resize(n * npp, T::zero());
+        let gw = T::lit(L::gather_weight());
+        let singular = st
+            .weights
+            .par_chunks_mut(npp)
+            .zip(st.moment_inverse.par_iter_mut())
+            .zip(particles.x.par_iter())
+            .enumerate()
+            .filter_map(|(p, ((w, kp), x))| {
+                let mut d = Matrix::<T, D>::zeros();
+                let per_grid = npp / L::GRIDS;
+                for k in 0..L::GRIDS {
+                    let s = Stencil::<T, D>::new::<K>(x, inv_h, T::lit(L::offset(k)));
+                    for q in 0..per_grid {
+                        let j = s.local(q);
+                        let wq = s.weight(&j);
+                        w[k * per_grid + q] = wq;
+                        let r = s.offset_to_node(&j, h);
+                        d += r * r.transpose() * wq;
+                    }
+                }
+                match try_inverse(&(d * gw)) {
+                    Some(inv) => {
+                        *kp = inv;
+                        None
+                    }
+                    None => Some(p),
+                }
+            })
+            .min();
+        self.rebuilds += 1;
+        self.weight_evaluations += n as u64;
+        self.built = true;
+        self.rebuild_seconds += t0.elapsed().as_secs_f64();
+        match singular {
+            Some(p) => Err(StepError::NonFinite {
+                particle: particles.id[p],
+                quantity:
+                    "moment matrix K_p (singular: use the quadratic, cubic or compact-dual stencil)",
+            }),
+            None => Ok(()),
+        }
+    }
+
+    /// One step; rebuilds the reference first when none exists, and after the step
+    /// when `reference` says so. Returns whether a rebuild happened after the step.
+    pub fn step<R: ReferenceConfig>(
+        &mut self,
+        particles: &mut Particles<T, D>,
+        materials: &[Material<T>],
+        reference: &R,
+        params: &StepParams<T, D>,
+    ) -> Result<bool, StepError> {
+        if !self.built || self.state.position.len() != particles.len() {
+            self.rebuild(particles, params.h)?;
+        }
+        let t1 = Instant::now();
+        self.particle_to_grid(particles, materials, params.dt, params.h);
+        let t2 = Instant::now();
+        self.grid_update(params);
+        let t3 = Instant::now();
+        let result = self.grid_to_particle(particles, materials, params);
+        let t4 = Instant::now();
+        self.times.p2g += (t2 - t1).as_secs_f64();
+        self.times.grid_update += (t3 - t2).as_secs_f64();
+        self.times.g2p += (t4 - t3).as_secs_f64();
+        result?;
+        if reference.should_rebuild(&self.delta_j) {
+            self.rebuild(particles, params.h)?;
+            return Ok(true);
+        }
+        Ok(false)
+    }
+
+    fn particle_to_grid(
+        &mut self,
+        particles: &Particles<T, D>,
+        materials: &[Material<T>],
+        dt: T,
+        h: T,
+    ) {
+        let inv_h = T::one() / h;
+        let ext = BLOCK as usize + (L::GRIDS - 1) + (K::NODES_PER_AXIS - 1);
+        let npp = Self::nodes_per_particle();
+        let per_grid = npp / L::GRIDS;
+        let (p, st) = (particles, &self.state);
+        self.grid.scatter(ext, false, true, |_home, range, buf| {
+            for i in range {
+                let xs = st.position[i];
+                let kp = st.moment_inverse[i];
+                let c = p.affine.get(i).map_or(Matrix::<T, D>::zeros(), |b| b * kp);
+                let fsn_inv_t = try_inverse(&st.relative_deformation[i])
+                    .map_or(Matrix::<T, D>::identity(), |f| f.transpose());
+                let tau = materials[p.material[i] as usize].kirchhoff_stress(&p.state(i));
+                let force = tau * fsn_inv_t * kp * (-p.volume[i] * dt);
+                let (m, v, x) = (p.mass[i], p.v[i], p.x[i]);
+                let w = &st.weights[i * npp..(i + 1) * npp];
+                for k in 0..L::GRIDS {
+                    let (base, frac) = geometry::<T, D, K, L>(&xs, inv_h, k);
+                    let s = Stencil::<T, D> {
+                        base,
+                        w: [[T::zero(); 4]; D],
+                        dw: [[T::zero(); 4]; D],
+                        frac,
+                        n: K::NODES_PER_AXIS,
+                        inv_h,
+                    };
+                    for q in 0..per_grid {
+                        let j = s.local(q);
+                        let wq = w[k * per_grid + q];
+                        let r = s.offset_to_node(&j, h);
+                        let node = s.node(&j);
+                        let mw = m * wq;
+                        buf.add(k, &node, mw, &((v + c * r) * mw), &(force * r * wq));
+                        buf.add_position(k, &node, &(x * mw));
+                    }
+                }
+            }
+        });
+    }
+
+    fn grid_update(&mut self, params: &StepParams<T, D>) {
+        let dt = params.dt;
+        let g = params.gravity;
+        let t = params.time;
+        let colliders: &[Collider<T, D>] = &params.colliders;
+        self.grid.update(|_k, _node, m, p, q_moment| {
+            let mut v = p / m + g * dt;
+            // Boundary conditions at the node's current position q_i (eq. 12).
+            let q = q_moment / m;
+            for c in colliders {
+                v = c.apply(&q, v, t);
+            }
+            v
+        });
+    }
+
+    fn grid_to_particle(
+        &mut self,
+        particles: &mut Particles<T, D>,
+        materials: &[Material<T>],
+        params: &StepParams<T, D>,
+    ) -> Result<(), StepError> {
+        let (h, dt) = (params.h, params.dt);
+        let inv_h = T::one() / h;
+        let gw = T::lit(L::gather_weight());
+        let npp = Self::nodes_per_particle();
+        let per_grid = npp / L::GRIDS;
+        let (lo, hi) = (params.domain_min, params.domain_max);
+        let grid = &self.grid;
+        let homes = grid.home_of_sorted();
+        let n = particles.len();
+        self.delta_j.clear();
+        self.delta_j.resize(n, 0.0);
+        let ReferenceState {
+            position,
+            relative_deformation,
+            moment_inverse,
+            weights,
+        } = &mut self.state;
+        let (position, moment_inverse, weights) = (&*position, &*moment_inverse, &*weights);
+        let Particles {
+            id,
+            x,
+            v,
+            material,
+            deformation,
+            plastic,
+            jacobian,
+            velocity_gradient,
+            affine,
+            ..
+        } = particles;
+        let (id, material) = (&*id, &*material);
+
+        let one = |p: usize,
+                   xp: &mut Vector<T, D>,
+                   vp: &mut Vector<T, D>,
+                   ap: Option<&mut Matrix<T, D>>,
+                   fsn: &mut Matrix<T, D>,
+                   dj: &mut f64,
+                   mut state: StateMut<'_, T, D>|
+         -> Option<StepError> {
+            let view = grid.gather_view(homes[p] as usize);
+            let w = &weights[p * npp..(p + 1) * npp];
+            let mut vel = Vector::<T, D>::zeros();
+            let mut b = Matrix::<T, D>::zeros();
+            let mut first_moment = Vector::<T, D>::zeros();
+            for k in 0..L::GRIDS {
+                let (base, frac) = geometry::<T, D, K, L>(&position[p], inv_h, k);
+                for q in 0..per_grid {
+                    let mut j = [0usize; D];
+                    let mut rem = q;
+                    for ja in j.iter_mut() {
+                        *ja = rem % K::NODES_PER_AXIS;
+                        rem /= K::NODES_PER_AXIS;
+                    }
+                    let mut node = base;
+                    let mut r = Vector::<T, D>::zeros();
+                    for a in 0..D {
+                        node[a] += j[a] as i32;
+                        r[a] = (T::lit(j[a] as f64) - frac[a]) * h;
+                    }
+                    let wq = w[k * per_grid + q];
+                    let vi = view.velocity(k, &node);
+                    vel += vi * wq;
+                    b += vi * wq * r.transpose();
+                    first_moment += r * wq;
+                }
+            }
+            vel *= gw;
+            b *= gw;
+            first_moment *= gw;
+            let kp = moment_inverse[p];
+            // G = Σ W (v_i − v_p) rᵀ K (eq. 31).
+            let grad = (b - vel * first_moment.transpose()) * kp;
+            let fsn_inv = try_inverse(fsn);
+            *vp = vel;
+            let mut xn = *xp + vel * dt;
+            for a in 0..D {
+                xn[a] = xn[a].clamp(lo[a], hi[a]);
+            }
+            *xp = xn;
+            if let Some(a) = ap {
+                *a = b;
+            }
+            let pid = id[p];
+            if !vel.iter().all(|c| c.is_finite_real()) {
+                return Some(StepError::NonFinite {
+                    particle: pid,
+                    quantity: "velocity",
+                });
+            }
+            let Some(fsn_inv) = fsn_inv else {
+                return Some(StepError::NonFinite {
+                    particle: pid,
+                    quantity: "relative deformation Fˢⁿ (singular)",
+                });
+            };
+            *fsn += grad * dt;
+            *dj = (determinant(fsn) - T::one()).abs().to_f64();
+            // Current-configuration velocity gradient: F⁰ⁿ⁺¹ = (I + Δt G Fˢⁿ⁻¹) F⁰ⁿ.
+            let l = grad * fsn_inv;
+            let model = &materials[material[p] as usize];
+            match model.advance(&mut state, &l, &l, dt) {
+                Ok(()) => None,
+                Err(StateFault::NonFinite(quantity)) => Some(StepError::NonFinite {
+                    particle: pid,
+                    quantity,
+                }),
+                Err(StateFault::Inverted(det)) => Some(StepError::Inverted {
+                    particle: pid,
+                    model: model.name(),
+                    det,
+                }),
+                Err(StateFault::NonPositiveVolume(j)) => Some(StepError::Collapsed {
+                    particle: pid,
+                    model: model.name(),
+                    j,
+                }),
+            }
+        };
+
+        let first_error = (
+            chunks(x, n),
+            chunks(v, n),
+            chunks(affine, n),
+            chunks(relative_deformation, n),
+            chunks(&mut self.delta_j, n),
+            chunks(deformation, n),
+            chunks(plastic, n),
+            chunks(jacobian, n),
+            chunks(velocity_gradient, n),
+        )
+            .into_par_iter()
+            .enumerate()
+            .filter_map(|(c, (xs, vs, as_, fsns, djs, fs, qs, js, ls))| {
+                let mut worst: Option<StepError> = None;
+                let mut as_ = as_.iter_mut();
+                let (mut fs, mut qs, mut js, mut ls) =
+                    (fs.iter_mut(), qs.iter_mut(), js.iter_mut(), ls.iter_mut());
+                for (k, (((xp, vp), fsn), dj)) in xs
+                    .iter_mut()
+                    .zip(vs.iter_mut())
+                    .zip(fsns.iter_mut())
+                    .zip(djs.iter_mut())
+                    .enumerate()
+                {
+                    let state = StateMut {
+                        deformation: fs.next(),
+                        plastic: qs.next(),
+                        jacobian: js.next(),
+                        velocity_gradient: ls.next(),
+                    };
+                    if let Some(e) = one(c * CHUNK + k, xp, vp, as_.next(), fsn, dj, state) {
+                        if worst.as_ref().is_none_or(|w| e.particle() < w.particle()) {
+                            worst = Some(e);
+                        }
+                    }
+                }
+                worst
+            })
+            .min_by_key(|e| e.particle());
+        match first_error {
+            Some(e) => Err(e),
+            None => Ok(()),
+        }
+    }
+}
