@@ -23,14 +23,18 @@
 //! **Dual grid.** Every sum over nodes runs over both grids with weight ½, exactly as
 //! in the Eulerian CK-MPM step: `K_p = (½ Σ_k Σ_i W r rᵀ)⁻¹`, `v_p = ½ Σ_k Σ_i W v_i`,
 //! `B_p = ½ Σ_k Σ_i W v_i rᵀ`, and each grid receives the full force
-//! `−V τ (Fˢⁿ)⁻ᵀ K r W` with its own `r` and `W`. Because the ½-averaged first moment
-//! vanishes (`½ Σ_k Σ_i W r = 0`, methods.md §2), the proofs carry over unchanged:
-//! the affine term adds no momentum (`Σ W B K r = B K · 0`), each grid's forces sum to
-//! zero (`Σ_i W r = 0` per grid would be needed for that — it is not true on one
-//! compact grid, but `Σ_k` of the *averaged* forces is what the ½-averaged G2P sees),
-//! and `G = ½ Σ W (v_i − v_p) rᵀ K` reproduces linear velocity fields exactly
-//! (`½ Σ W (A r) rᵀ K = A`). Tests check linear momentum, angular momentum and
-//! equivalence with the Eulerian MLS step for this combination.
+//! `−V τ (Fˢⁿ)⁻ᵀ K r W` with its own `r` and `W`. Everything rests on one identity, the
+//! vanishing ½-averaged first moment `½ Σ_k Σ_i W r = 0` (methods.md §2; on a single
+//! compact grid it is `−h sin(2πf)/(2π)` per axis and does not vanish):
+//! - momentum: the affine term adds `m B K (½ Σ W r) = 0`; the forces add
+//!   `½ Σ_k Σ_i f_ik = −V τ (Fˢⁿ)⁻ᵀ K (½ Σ W r) = 0` to the ½-averaged grid momentum,
+//!   which is what the ½-averaged G2P returns to the particles;
+//! - `K_p` is the inverse of the ½-averaged second moment, so
+//!   `½ Σ W (A r) rᵀ K = A`: `G` reproduces any linear velocity field exactly;
+//! - with `Fˢⁿ = I` and `K_p = D_p⁻¹` the step is term by term the Eulerian MLS step.
+//!
+//! Tests check linear momentum and equivalence with the Eulerian MLS step for this
+//! combination.
 //!
 //! **Rebuild every step** (ε = 0) reproduces the Eulerian MLS-MPM step: then
 //! `Fˢⁿ = I`, `K_p = D_p⁻¹` at the current position and `B_p` is kept across the
