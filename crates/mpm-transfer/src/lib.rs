@@ -18,7 +18,7 @@ pub mod scheme;
 pub mod timestep;
 
 pub use apic::Apic;
-pub use diagnostics::{particle_totals, Totals};
+pub use diagnostics::{connected_components, particle_totals, Totals};
 pub use explicit_step::{ExplicitStepper, PhaseTimes, StepParams};
 pub use flip::Flip;
 pub use mls::Mls;
