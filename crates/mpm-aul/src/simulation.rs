@@ -219,6 +219,15 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Simulation<T, D, K, L> {
         };
     }
 
+    /// Tells a Lagrangian stepper which body each particle (by id) belongs to: each
+    /// body keeps its own reference lattice and bodies meet through the contact pass.
+    /// No effect for Eulerian (all bodies share the grid anyway).
+    pub fn set_bodies(&mut self, bodies: Vec<u16>) {
+        if let Stepper::Lagrangian(st) = &mut self.stepper {
+            st.set_bodies(bodies);
+        }
+    }
+
     /// The grid in use.
     pub fn grid(&self) -> &BlockSparseGrid<T, D> {
         match &self.stepper {

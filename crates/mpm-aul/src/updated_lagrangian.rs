@@ -40,10 +40,14 @@
 //! `Fˢⁿ = I`, `K_p = D_p⁻¹` at the current position and `B_p` is kept across the
 //! rebuild exactly as APIC/MLS keep it.
 //!
-//! **One reference for the whole scene.** All particles share one configuration map;
-//! bodies that are apart in the reference interact only after a rebuild brings them
-//! onto shared nodes, so the CLI accepts `total-lagrangian`/`adaptive` for
-//! single-body scenes only (multi-body contact is future work).
+//! **Several bodies.** Each body gets its own reference lattice, stored in its own
+//! lane of the block-sparse index space (`LANE` cells apart along x), so bodies never
+//! share reference nodes. They interact through `couple_bodies`: every reference node
+//! is spread at its current position `q_i` onto a global grid of spacing `h`; where
+//! several bodies meet at a global node, each body's nodal velocities are corrected
+//! towards the centre-of-mass velocity there (multi-velocity-field, no-slip contact).
+//! The correction conserves linear momentum exactly and leaves a body alone untouched.
+//! The reference criterion is evaluated over all particles together.
 
 use crate::reference::ReferenceConfig;
 use mpm_constitutive::{Material, StateFault, StateMut};
@@ -86,7 +90,21 @@ pub struct UpdatedLagrangianStepper<T: Real, const D: usize, K: Kernel, L: GridL
     cells: Vec<[i32; D]>,
     delta_j: Vec<f64>,
     built: bool,
+    /// Body of each particle, by particle id (empty: one body).
+    bodies: Vec<u16>,
+    multi_body: bool,
     _stencil: PhantomData<(K, L)>,
+}
+
+/// Cells between the reference lattices of two bodies along x: each body's lattice
+/// lives in its own lane of the block-sparse index space, so bodies never share
+/// reference nodes and couple only through the contact pass.
+const LANE: i32 = 1 << 22;
+
+/// Lane (body) of a node index.
+#[inline(always)]
+fn lane_of(node_x: i32) -> i32 {
+    (node_x + LANE / 2).div_euclid(LANE)
 }
 
 impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Default
@@ -139,8 +157,24 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
             cells: Vec::new(),
             delta_j: Vec::new(),
             built: false,
+            bodies: Vec::new(),
+            multi_body: false,
             _stencil: PhantomData,
         }
+    }
+
+    /// Gives every particle (by id) its body. Each body gets its own reference
+    /// lattice; bodies interact through [`Self::couple_bodies`].
+    pub fn set_bodies(&mut self, bodies: Vec<u16>) {
+        self.multi_body = bodies.iter().any(|&b| b != bodies[0]);
+        self.bodies = bodies;
+        self.built = false;
+    }
+
+    /// Lane offset (in cells along x) of the particle with id `id`.
+    #[inline(always)]
+    fn lane(&self, id: u32) -> i32 {
+        self.bodies.get(id as usize).map_or(0, |&b| b as i32 * LANE)
     }
 
     /// Stencil nodes per particle over all grids.
@@ -167,11 +201,18 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
         let t0 = Instant::now();
         let inv_h = T::one() / h;
         self.cells.clear();
-        particles
+        let this = &*self;
+        let cells: Vec<[i32; D]> = particles
             .x
             .par_iter()
-            .map(|x| geometry::<T, D, K, L>(x, inv_h, 0).0)
-            .collect_into_vec(&mut self.cells);
+            .zip(particles.id.par_iter())
+            .map(|(x, id)| {
+                let mut c = geometry::<T, D, K, L>(x, inv_h, 0).0;
+                c[0] += this.lane(*id);
+                c
+            })
+            .collect();
+        self.cells = cells;
         let order = self.grid.bin(&self.cells);
         particles.reorder(&order);
         let n = particles.len();
@@ -268,8 +309,14 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
         let npp = Self::nodes_per_particle();
         let per_grid = npp / L::GRIDS;
         let (p, st) = (particles, &self.state);
+        let lanes: Vec<i32> = if self.multi_body {
+            p.id.iter().map(|&id| self.lane(id)).collect()
+        } else {
+            Vec::new()
+        };
         self.grid.scatter(ext, false, true, |_home, range, buf| {
             for i in range {
+                let lane = lanes.get(i).copied().unwrap_or(0);
                 let xs = st.position[i];
                 let kp = st.moment_inverse[i];
                 let c = p.affine.get(i).map_or(Matrix::<T, D>::zeros(), |b| b * kp);
@@ -280,7 +327,8 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
                 let (m, v, x) = (p.mass[i], p.v[i], p.x[i]);
                 let w = &st.weights[i * npp..(i + 1) * npp];
                 for k in 0..L::GRIDS {
-                    let (base, frac) = geometry::<T, D, K, L>(&xs, inv_h, k);
+                    let (mut base, frac) = geometry::<T, D, K, L>(&xs, inv_h, k);
+                    base[0] += lane;
                     let s = Stencil::<T, D> {
                         base,
                         w: [[T::zero(); 4]; D],
@@ -308,14 +356,122 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
         let g = params.gravity;
         let t = params.time;
         let colliders: &[Collider<T, D>] = &params.colliders;
+        let multi = self.multi_body;
         self.grid.update(|_k, _node, m, p, q_moment| {
             let mut v = p / m + g * dt;
-            // Boundary conditions at the node's current position q_i (eq. 12).
-            let q = q_moment / m;
-            for c in colliders {
-                v = c.apply(&q, v, t);
+            if !multi {
+                // Boundary conditions at the node's current position q_i (eq. 12).
+                let q = q_moment / m;
+                for c in colliders {
+                    v = c.apply(&q, v, t);
+                }
             }
             v
+        });
+        if multi {
+            self.couple_bodies(params.h);
+            self.grid.for_each_node_mut(|_k, _node, m, q_moment, v| {
+                let q = q_moment / m;
+                for c in colliders {
+                    *v = c.apply(&q, *v, t);
+                }
+            });
+        }
+    }
+
+    /// Contact between bodies (multi-velocity-field, no-slip): every reference node is
+    /// spread, at its current position `q_i`, onto a global grid of spacing `h` with
+    /// multilinear weights `w_ig`. Where several bodies meet at a global node `g`, each
+    /// body's node velocities are corrected by `Σ_g w_ig (v_cm,g − v_b,g)`, the
+    /// difference between the centre-of-mass velocity and the body's own there.
+    /// Momentum is conserved exactly: `Σ_b Σ_g m_bg (v_cm,g − v_bg) = 0`. Nodes of a
+    /// body alone are untouched, so single-body motion is unchanged. Sequential and in
+    /// a fixed order (deterministic).
+    fn couple_bodies(&mut self, h: T) {
+        use std::collections::BTreeMap;
+        let inv_h = T::one() / h;
+        let corners = 1usize << D;
+        let weights_at = |q: &Vector<T, D>| {
+            let mut base = [0i32; D];
+            let mut f = [T::zero(); D];
+            for a in 0..D {
+                let xg = q[a] * inv_h;
+                base[a] = xg.floor_index();
+                f[a] = xg - T::lit(base[a] as f64);
+            }
+            (base, f)
+        };
+        let corner = |base: &[i32; D], f: &[T; D], c: usize| {
+            let mut g = *base;
+            let mut w = T::one();
+            for a in 0..D {
+                if (c >> a) & 1 == 1 {
+                    g[a] += 1;
+                    w *= f[a];
+                } else {
+                    w *= T::one() - f[a];
+                }
+            }
+            (g, w)
+        };
+        // Per (global node, body): mass and momentum.
+        let mut acc: BTreeMap<([i32; D], i32), (T, Vector<T, D>)> = BTreeMap::new();
+        self.grid.for_each_node_mut(|_k, node, m, q_moment, v| {
+            let q = q_moment / m;
+            let (base, f) = weights_at(&q);
+            let lane = lane_of(node[0]);
+            for c in 0..corners {
+                let (g, w) = corner(&base, &f, c);
+                let e = acc
+                    .entry((g, lane))
+                    .or_insert((T::zero(), Vector::<T, D>::zeros()));
+                e.0 += w * m;
+                e.1 += *v * (w * m);
+            }
+        });
+        // Corrections where two or more bodies share a global node.
+        let mut correction: BTreeMap<([i32; D], i32), Vector<T, D>> = BTreeMap::new();
+        let mut it = acc.iter().peekable();
+        while let Some((&(g, lane), &(m, p))) = it.next() {
+            let mut group = vec![(lane, m, p)];
+            while let Some((&(g2, l2), &(m2, p2))) = it.peek() {
+                if g2 != g {
+                    break;
+                }
+                group.push((l2, m2, p2));
+                it.next();
+            }
+            if group.len() < 2 {
+                continue;
+            }
+            let (mt, pt) = group
+                .iter()
+                .fold((T::zero(), Vector::<T, D>::zeros()), |(a, b), (_, m, p)| {
+                    (a + *m, b + p)
+                });
+            if mt <= T::zero() {
+                continue;
+            }
+            let v_cm = pt / mt;
+            for (l, m, p) in group {
+                if m > T::zero() {
+                    correction.insert((g, l), v_cm - p / m);
+                }
+            }
+        }
+        if correction.is_empty() {
+            return;
+        }
+        self.grid.for_each_node_mut(|_k, node, m, q_moment, v| {
+            let q = q_moment / m;
+            let (base, f) = weights_at(&q);
+            let lane = lane_of(node[0]);
+            for c in 0..corners {
+                let (g, w) = corner(&base, &f, c);
+                if let Some(d) = correction.get(&(g, lane)) {
+                    *v += d * w;
+                }
+            }
         });
     }
 
@@ -331,6 +487,11 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
         let npp = Self::nodes_per_particle();
         let per_grid = npp / L::GRIDS;
         let (lo, hi) = (params.domain_min, params.domain_max);
+        let lanes: Vec<i32> = if self.multi_body {
+            particles.id.iter().map(|&id| self.lane(id)).collect()
+        } else {
+            Vec::new()
+        };
         let grid = &self.grid;
         let homes = grid.home_of_sorted();
         let n = particles.len();
@@ -370,8 +531,10 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
             let mut vel = Vector::<T, D>::zeros();
             let mut b = Matrix::<T, D>::zeros();
             let mut first_moment = Vector::<T, D>::zeros();
+            let lane = lanes.get(p).copied().unwrap_or(0);
             for k in 0..L::GRIDS {
-                let (base, frac) = geometry::<T, D, K, L>(&position[p], inv_h, k);
+                let (mut base, frac) = geometry::<T, D, K, L>(&position[p], inv_h, k);
+                base[0] += lane;
                 for q in 0..per_grid {
                     let mut j = [0usize; D];
                     let mut rem = q;

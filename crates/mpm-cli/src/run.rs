@@ -391,6 +391,7 @@ pub fn build_simulation<T: Real, const D: usize, K: Kernel, L: GridLayout>(
             eta: s.adaptive_eta,
         }),
     });
+    sim.set_bodies(body_of.clone());
     Ok((sim, body_of))
 }
 

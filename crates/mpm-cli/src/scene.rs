@@ -1058,13 +1058,6 @@ impl Scene {
                     "Use kernel = \"quadratic\" or \"cubic\", or the compact kernel with grid = \"dual\"",
                 ));
             }
-            if self.body.len() > 1 {
-                return Err(c.err(
-                    "simulation.reference",
-                    format!("reference \"{name}\" with {} bodies is not supported yet: bodies share one reference map and would not interact until a rebuild", self.body.len()),
-                    "Use one [[body]] or reference = \"eulerian\"",
-                ));
-            }
         }
         match s.integrator {
             IntegratorKind::Explicit => {}
@@ -1804,19 +1797,11 @@ normal = [0.0, 1.0]
     #[test]
     fn unsupported_features_say_so() {
         let ns = "not supported yet";
-        // FULL_3D has three bodies and a FLIP transfer.
+        // FULL_3D has a FLIP transfer.
         bad(
             FULL_3D,
             &["simulation.reference=adaptive"],
             &["simulation.transfer", "adaptive", ns],
-        );
-        bad(
-            FULL_3D,
-            &[
-                "simulation.reference=total-lagrangian",
-                "simulation.transfer=mls",
-            ],
-            &["simulation.reference", "3 bodies", ns],
         );
         bad(
             FULL_3D,

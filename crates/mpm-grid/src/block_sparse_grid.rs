@@ -575,6 +575,37 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
         }
     }
 
+    /// Visits every node with mass, sequentially in storage order:
+    /// `f(grid, node_index, mass, position_moment, &mut velocity)` (`position_moment`
+    /// is zero unless the scatter kept positions). For passes that couple nodes, such
+    /// as contact between bodies.
+    pub fn for_each_node_mut(
+        &mut self,
+        mut f: impl FnMut(usize, [i32; D], T, &Vector<T, D>, &mut Vector<T, D>),
+    ) {
+        let npb = self.nodes_per_block;
+        let n_blocks = self.blocks.len();
+        let zero = Vector::<T, D>::zeros();
+        for chunk in 0..self.grids * n_blocks {
+            let grid = chunk / n_blocks;
+            let block = self.blocks[chunk % n_blocks];
+            for l in 0..npb {
+                let i = chunk * npb + l;
+                let m = self.mass[i];
+                if m > T::zero() && i < self.velocity.len() {
+                    let mut node = block.map(|b| b * BLOCK);
+                    let mut rem = l;
+                    for na in node.iter_mut() {
+                        *na += (rem % BLOCK as usize) as i32;
+                        rem /= BLOCK as usize;
+                    }
+                    let q = self.position_moment.get(i).unwrap_or(&zero);
+                    f(grid, node, m, q, &mut self.velocity[i]);
+                }
+            }
+        }
+    }
+
     /// Visits every node with mass: `f(grid, node_index, mass, momentum, velocity)`
     /// in storage order (sequential; for diagnostics and tests).
     pub fn for_each_node(
