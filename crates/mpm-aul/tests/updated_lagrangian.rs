@@ -249,11 +249,7 @@ fn two_bodies_with_separate_references_collide() {
             K::NAME
         );
         // They met (bodies stopped approaching) and did not interpenetrate more than a cell.
-        assert!(
-            deepest > -H,
-            "{}: bodies never met ({deepest:e})",
-            K::NAME
-        );
+        assert!(deepest > -H, "{}: bodies never met ({deepest:e})", K::NAME);
         assert!(
             deepest < H,
             "{}: interpenetration {deepest:e} m > h",
