@@ -215,7 +215,16 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Simulation<T, D, K, L> {
         self.reference = reference;
         self.stepper = match reference {
             Reference::Eulerian(_) => Stepper::Eulerian(ExplicitStepper::new()),
-            _ => Stepper::Lagrangian(UpdatedLagrangianStepper::new()),
+            _ => {
+                let mut st = UpdatedLagrangianStepper::new();
+                // PIC/FLIP transfers select the kernel-MPM variant (Appendix B).
+                match self.transfer {
+                    Transfer::Pic(_) => st.set_kernel_mpm(T::zero()),
+                    Transfer::Flip(f) => st.set_kernel_mpm(f.blend),
+                    Transfer::Apic(_) | Transfer::Mls(_) => {}
+                }
+                Stepper::Lagrangian(st)
+            }
         };
     }
 

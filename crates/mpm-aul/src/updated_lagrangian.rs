@@ -70,6 +70,8 @@ pub struct ReferenceState<T: Real, const D: usize> {
     pub moment_inverse: Vec<Matrix<T, D>>,
     /// Stored weights `W_ip`, `nodes_per_particle` per particle (grid-major).
     pub weights: Vec<T>,
+    /// Stored weight gradients `∇_X W_ip` (kernel-MPM variant only, else empty).
+    pub gradients: Vec<Vector<T, D>>,
 }
 
 /// The updated-Lagrangian stepper: a grid binned by reference positions and the
@@ -90,6 +92,8 @@ pub struct UpdatedLagrangianStepper<T: Real, const D: usize, K: Kernel, L: GridL
     cells: Vec<[i32; D]>,
     delta_j: Vec<f64>,
     built: bool,
+    /// Kernel-MPM variant (paper Appendix B) with this FLIP fraction; `None`: MLS.
+    kernel_mpm: Option<T>,
     /// Body of each particle, by particle id (empty: one body).
     bodies: Vec<u16>,
     multi_body: bool,
@@ -157,10 +161,20 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
             cells: Vec::new(),
             delta_j: Vec::new(),
             built: false,
+            kernel_mpm: None,
             bodies: Vec::new(),
             multi_body: false,
             _stencil: PhantomData,
         }
+    }
+
+    /// Switches to the kernel-MPM variant of A-ULMPM (paper Appendix B): no affine
+    /// term, force `−V τ (Fˢⁿ)⁻ᵀ ∇_X W`, `Fˢⁿ += Δt Σ v_i ∇_X Wᵀ`, and a FLIP/PIC blend
+    /// with FLIP fraction `flip` (0 = PIC) for the particle velocity. Rebuilding every
+    /// step it is the Eulerian PIC/FLIP step.
+    pub fn set_kernel_mpm(&mut self, flip: T) {
+        self.kernel_mpm = Some(flip);
+        self.built = false;
     }
 
     /// Gives every particle (by id) its body. Each body gets its own reference
@@ -224,22 +238,38 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
             .resize(n, Matrix::<T, D>::identity());
         st.moment_inverse.resize(n, Matrix::<T, D>::zeros());
         st.weights.resize(n * npp, T::zero());
+        let with_gradients = self.kernel_mpm.is_some();
+        st.gradients.clear();
+        if with_gradients {
+            st.gradients.resize(n * npp, Vector::<T, D>::zeros());
+        }
+        let mut empty: Vec<&mut [Vector<T, D>]> = Vec::new();
+        let gradient_chunks: Vec<&mut [Vector<T, D>]> = if with_gradients {
+            st.gradients.chunks_mut(npp).collect()
+        } else {
+            empty.resize_with(n, || &mut []);
+            empty
+        };
         let gw = T::lit(L::gather_weight());
         let singular = st
             .weights
             .par_chunks_mut(npp)
+            .zip(gradient_chunks.into_par_iter())
             .zip(st.moment_inverse.par_iter_mut())
             .zip(particles.x.par_iter())
             .enumerate()
-            .filter_map(|(p, ((w, kp), x))| {
+            .filter_map(|(p, (((w, gr), kp), x))| {
                 let mut d = Matrix::<T, D>::zeros();
                 let per_grid = npp / L::GRIDS;
                 for k in 0..L::GRIDS {
                     let s = Stencil::<T, D>::new::<K>(x, inv_h, T::lit(L::offset(k)));
                     for q in 0..per_grid {
                         let j = s.local(q);
-                        let wq = s.weight(&j);
+                        let (wq, gq) = s.weight_and_gradient(&j);
                         w[k * per_grid + q] = wq;
+                        if let Some(g) = gr.get_mut(k * per_grid + q) {
+                            *g = gq;
+                        }
                         let r = s.offset_to_node(&j, h);
                         d += r * r.transpose() * wq;
                     }
@@ -249,6 +279,8 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
                         *kp = inv;
                         None
                     }
+                    // The kernel-MPM variant does not use K_p.
+                    None if with_gradients => None,
                     None => Some(p),
                 }
             })
@@ -314,16 +346,28 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
         } else {
             Vec::new()
         };
-        self.grid.scatter(ext, false, true, |_home, range, buf| {
+        let kernel_mpm = self.kernel_mpm;
+        let flip = kernel_mpm.is_some_and(|a| a > T::zero());
+        self.grid.scatter(ext, flip, true, |_home, range, buf| {
             for i in range {
                 let lane = lanes.get(i).copied().unwrap_or(0);
                 let xs = st.position[i];
                 let kp = st.moment_inverse[i];
-                let c = p.affine.get(i).map_or(Matrix::<T, D>::zeros(), |b| b * kp);
+                let c = match kernel_mpm {
+                    Some(_) => Matrix::<T, D>::zeros(),
+                    None => p.affine.get(i).map_or(Matrix::<T, D>::zeros(), |b| b * kp),
+                };
                 let fsn_inv_t = try_inverse(&st.relative_deformation[i])
                     .map_or(Matrix::<T, D>::identity(), |f| f.transpose());
                 let tau = materials[p.material[i] as usize].kirchhoff_stress(&p.state(i));
-                let force = tau * fsn_inv_t * kp * (-p.volume[i] * dt);
+                // MLS: −V τ Fˢⁿ⁻ᵀ K r W; kernel-MPM: −V τ Fˢⁿ⁻ᵀ ∇_X W.
+                let stress = tau * fsn_inv_t * (-p.volume[i] * dt);
+                let force = stress * kp;
+                let grads = if kernel_mpm.is_some() {
+                    &st.gradients[i * npp..(i + 1) * npp]
+                } else {
+                    &[][..]
+                };
                 let (m, v, x) = (p.mass[i], p.v[i], p.x[i]);
                 let w = &st.weights[i * npp..(i + 1) * npp];
                 for k in 0..L::GRIDS {
@@ -343,7 +387,11 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
                         let r = s.offset_to_node(&j, h);
                         let node = s.node(&j);
                         let mw = m * wq;
-                        buf.add(k, &node, mw, &((v + c * r) * mw), &(force * r * wq));
+                        let impulse = match grads.get(k * per_grid + q) {
+                            Some(g) => stress * g,
+                            None => force * r * wq,
+                        };
+                        buf.add(k, &node, mw, &((v + c * r) * mw), &impulse);
                         buf.add_position(k, &node, &(x * mw));
                     }
                 }
@@ -502,8 +550,11 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
             relative_deformation,
             moment_inverse,
             weights,
+            gradients,
         } = &mut self.state;
         let (position, moment_inverse, weights) = (&*position, &*moment_inverse, &*weights);
+        let gradients = &*gradients;
+        let kernel_mpm = self.kernel_mpm;
         let Particles {
             id,
             x,
@@ -531,6 +582,8 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
             let mut vel = Vector::<T, D>::zeros();
             let mut b = Matrix::<T, D>::zeros();
             let mut first_moment = Vector::<T, D>::zeros();
+            let mut kernel_grad = Matrix::<T, D>::zeros();
+            let mut change = Vector::<T, D>::zeros();
             let lane = lanes.get(p).copied().unwrap_or(0);
             for k in 0..L::GRIDS {
                 let (mut base, frac) = geometry::<T, D, K, L>(&position[p], inv_h, k);
@@ -551,16 +604,31 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
                     let wq = w[k * per_grid + q];
                     let vi = view.velocity(k, &node);
                     vel += vi * wq;
-                    b += vi * wq * r.transpose();
-                    first_moment += r * wq;
+                    if let Some(alpha) = kernel_mpm {
+                        kernel_grad += vi * gradients[p * npp + k * per_grid + q].transpose();
+                        if alpha > T::zero() {
+                            change += (vi - view.velocity_old(k, &node)) * wq;
+                        }
+                    } else {
+                        b += vi * wq * r.transpose();
+                        first_moment += r * wq;
+                    }
                 }
             }
             vel *= gw;
             b *= gw;
             first_moment *= gw;
-            let kp = moment_inverse[p];
-            // G = Σ W (v_i − v_p) rᵀ K (eq. 31).
-            let grad = (b - vel * first_moment.transpose()) * kp;
+            let grad = match kernel_mpm {
+                // Kernel-MPM: ∇_X v = Σ v_i ∇_X Wᵀ (Appendix B).
+                Some(_) => kernel_grad * gw,
+                // G = Σ W (v_i − v_p) rᵀ K (eq. 31).
+                None => (b - vel * first_moment.transpose()) * moment_inverse[p],
+            };
+            if let Some(alpha) = kernel_mpm {
+                // FLIP/PIC blend.
+                let flip = *vp + change * gw;
+                vel = flip * alpha + vel * (T::one() - alpha);
+            }
             let fsn_inv = try_inverse(fsn);
             *vp = vel;
             let mut xn = *xp + vel * dt;

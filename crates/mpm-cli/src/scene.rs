@@ -1044,18 +1044,14 @@ impl Scene {
             } else {
                 "total-lagrangian"
             };
-            if !matches!(s.transfer, TransferKind::Apic | TransferKind::Mls) {
-                return Err(c.err(
-                    "simulation.transfer",
-                    format!("reference \"{name}\" runs MLS-A-ULMPM; its PIC/FLIP (kernel-MPM, paper Appendix B) variant is not supported yet"),
-                    "Use transfer = \"mls\" or \"apic\" with this reference",
-                ));
-            }
-            if matches!(s.kernel, Kernel::Linear | Kernel::Compact) && s.grid == GridKind::Single {
+            if matches!(s.kernel, Kernel::Linear | Kernel::Compact)
+                && s.grid == GridKind::Single
+                && matches!(s.transfer, TransferKind::Apic | TransferKind::Mls)
+            {
                 return Err(c.err(
                     "simulation.grid",
-                    format!("reference \"{name}\" needs K_p = (Σ W r rᵀ)⁻¹, which is singular for a two-node stencil on a single grid"),
-                    "Use kernel = \"quadratic\" or \"cubic\", or the compact kernel with grid = \"dual\"",
+                    format!("reference \"{name}\" with an affine transfer needs K_p = (Σ W r rᵀ)⁻¹, which is singular for a two-node stencil on a single grid"),
+                    "Use kernel = \"quadratic\" or \"cubic\", the compact kernel with grid = \"dual\", or transfer = \"pic\"/\"flip\"",
                 ));
             }
         }
@@ -1797,12 +1793,6 @@ normal = [0.0, 1.0]
     #[test]
     fn unsupported_features_say_so() {
         let ns = "not supported yet";
-        // FULL_3D has a FLIP transfer.
-        bad(
-            FULL_3D,
-            &["simulation.reference=adaptive"],
-            &["simulation.transfer", "adaptive", ns],
-        );
         bad(
             FULL_3D,
             &[

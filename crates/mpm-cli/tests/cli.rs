@@ -117,16 +117,14 @@ fn later_features_say_not_supported_yet() {
         },
         &["not supported yet"],
     );
-    // A-ULMPM's PIC/FLIP variant is not there yet; its MLS/APIC step is.
-    assert_rejected(
-        &|s| {
-            s.replace(
-                "transfer = \"apic\"",
-                "transfer = \"pic\"\nreference = \"adaptive\"",
-            )
-        },
-        &["simulation.transfer", "not supported yet"],
-    );
+    // Both A-ULMPM variants are accepted: MLS (APIC/MLS) and kernel-MPM (PIC/FLIP).
+    let (ok, err) = validate_with(&|s| {
+        s.replace(
+            "transfer = \"apic\"",
+            "transfer = \"pic\"\nreference = \"adaptive\"",
+        )
+    });
+    assert!(ok, "{err}");
     let (ok, err) = validate_with(&|s| {
         s.replace(
             "transfer = \"apic\"",
