@@ -40,6 +40,12 @@
 //! `Fˢⁿ = I`, `K_p = D_p⁻¹` at the current position and `B_p` is kept across the
 //! rebuild exactly as APIC/MLS keep it.
 //!
+//! **Kernel-MPM variant** (paper Appendix B; [`UpdatedLagrangianStepper::set_kernel_mpm`]):
+//! no affine term, the weight gradients `∇_X W` are stored with the weights, the force
+//! is `−V τ (Fˢⁿ)⁻ᵀ ∇_X W`, `Fˢⁿ += Δt Σ v_i ∇_X Wᵀ`, and the particle velocity is a
+//! FLIP/PIC blend. It needs no `K_p`, so it works with every stencil; rebuilt every
+//! step it is the Eulerian PIC/FLIP step.
+//!
 //! **Several bodies.** Each body gets its own reference lattice, stored in its own
 //! lane of the block-sparse index space (`LANE` cells apart along x), so bodies never
 //! share reference nodes. They interact through `couple_bodies`: every reference node
