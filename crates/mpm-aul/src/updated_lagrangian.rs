@@ -184,7 +184,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
     }
 
     /// Gives every particle (by id) its body. Each body gets its own reference
-    /// lattice; bodies interact through [`Self::couple_bodies`].
+    /// lattice; bodies interact through the contact pass (`couple_bodies`).
     pub fn set_bodies(&mut self, bodies: Vec<u16>) {
         self.multi_body = bodies.iter().any(|&b| b != bodies[0]);
         self.bodies = bodies;
