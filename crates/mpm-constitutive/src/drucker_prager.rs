@@ -15,7 +15,7 @@
 
 use crate::hencky::HenckyElasticity;
 use crate::isotropic::{deviatoric, PrincipalStrain};
-use crate::{ConstitutiveError, ConstitutiveModel, ElastoplasticModel};
+use crate::{ConstitutiveError, ElastoplasticModel};
 use mpm_math::{Matrix, Real, Vector};
 use serde::{Deserialize, Serialize};
 
@@ -115,6 +115,8 @@ impl<T: Real> DruckerPrager<T> {
 }
 
 impl<T: Real, const D: usize> ElastoplasticModel<T, D> for DruckerPrager<T> {
+    type Elastic = HenckyElasticity<T>;
+
     fn name(&self) -> &'static str {
         "drucker-prager"
     }
@@ -123,25 +125,9 @@ impl<T: Real, const D: usize> ElastoplasticModel<T, D> for DruckerPrager<T> {
         T::zero()
     }
 
-    fn energy_density(&self, fe: &Matrix<T, D>, _q: T) -> T {
-        self.elastic.energy_density(fe)
-    }
-
-    fn first_piola(&self, fe: &Matrix<T, D>, _q: T) -> Matrix<T, D> {
-        self.elastic.first_piola(fe)
-    }
-
-    fn first_piola_differential(
-        &self,
-        fe: &Matrix<T, D>,
-        _q: T,
-        dfe: &Matrix<T, D>,
-    ) -> Matrix<T, D> {
-        self.elastic.first_piola_differential(fe, dfe)
-    }
-
-    fn kirchhoff_stress(&self, fe: &Matrix<T, D>, _q: T) -> Matrix<T, D> {
-        self.elastic.kirchhoff_stress(fe)
+    /// Hencky elasticity, independent of the hardening state.
+    fn elastic_part(&self, _q: T) -> HenckyElasticity<T> {
+        self.elastic
     }
 
     /// Klár et al. 2016 return mapping in principal Hencky strain:
@@ -159,9 +145,5 @@ impl<T: Real, const D: usize> ElastoplasticModel<T, D> for DruckerPrager<T> {
             *q += dg;
         }
         ps.store(fe, plastic)
-    }
-
-    fn wave_speed(&self, density: T) -> T {
-        self.elastic.lame.wave_speed(density)
     }
 }

@@ -18,7 +18,7 @@
 
 use crate::hencky::HenckyElasticity;
 use crate::isotropic::{deviatoric, PrincipalStrain};
-use crate::{ConstitutiveError, ConstitutiveModel, ElastoplasticModel};
+use crate::{ConstitutiveError, ElastoplasticModel};
 use mpm_math::{Matrix, Real, Vector};
 use serde::{Deserialize, Serialize};
 
@@ -146,6 +146,8 @@ fn shear_factor<T: Real, const D: usize>() -> T {
 }
 
 impl<T: Real, const D: usize> ElastoplasticModel<T, D> for Nacc<T> {
+    type Elastic = HenckyElasticity<T>;
+
     fn name(&self) -> &'static str {
         "nacc"
     }
@@ -154,25 +156,9 @@ impl<T: Real, const D: usize> ElastoplasticModel<T, D> for Nacc<T> {
         self.alpha0
     }
 
-    fn energy_density(&self, fe: &Matrix<T, D>, _q: T) -> T {
-        self.elastic.energy_density(fe)
-    }
-
-    fn first_piola(&self, fe: &Matrix<T, D>, _q: T) -> Matrix<T, D> {
-        self.elastic.first_piola(fe)
-    }
-
-    fn first_piola_differential(
-        &self,
-        fe: &Matrix<T, D>,
-        _q: T,
-        dfe: &Matrix<T, D>,
-    ) -> Matrix<T, D> {
-        self.elastic.first_piola_differential(fe, dfe)
-    }
-
-    fn kirchhoff_stress(&self, fe: &Matrix<T, D>, _q: T) -> Matrix<T, D> {
-        self.elastic.kirchhoff_stress(fe)
+    /// Hencky elasticity, independent of the hardening state.
+    fn elastic_part(&self, _q: T) -> HenckyElasticity<T> {
+        self.elastic
     }
 
     /// Wolper et al. 2019 §4-style projection in principal Hencky strain, `α` = `q`:
@@ -189,9 +175,5 @@ impl<T: Real, const D: usize> ElastoplasticModel<T, D> for Nacc<T> {
         let mut ps = PrincipalStrain::of(fe);
         let plastic = self.return_map(&mut ps.eps, q);
         ps.store(fe, plastic)
-    }
-
-    fn wave_speed(&self, density: T) -> T {
-        self.elastic.lame.wave_speed(density)
     }
 }

@@ -6,7 +6,7 @@
 //! clamps the singular values of `F_E` to `[1 − θc, 1 + θs]` and moves the removed
 //! volume change into `J_P`.
 
-use crate::{ConstitutiveError, ConstitutiveModel, ElastoplasticModel, FixedCorotated, Lame};
+use crate::{ConstitutiveError, ElastoplasticModel, FixedCorotated, Lame};
 use mpm_math::{determinant, svd_rotation_variant, Matrix, Real};
 use serde::{Deserialize, Serialize};
 
@@ -123,6 +123,8 @@ impl<T: Real> Snow<T> {
 const PROJECTION_SLACK_ULPS: f64 = 64.0;
 
 impl<T: Real, const D: usize> ElastoplasticModel<T, D> for Snow<T> {
+    type Elastic = FixedCorotated<T>;
+
     fn name(&self) -> &'static str {
         "snow"
     }
@@ -132,29 +134,10 @@ impl<T: Real, const D: usize> ElastoplasticModel<T, D> for Snow<T> {
         T::one()
     }
 
-    /// `Ψ = μ(J_P) Σ(σᵢ − 1)² + λ(J_P)/2 (J_E − 1)²`.
-    fn energy_density(&self, fe: &Matrix<T, D>, q: T) -> T {
-        ConstitutiveModel::<T, D>::energy_density(&self.elastic_model(q), fe)
-    }
-
-    /// `P = 2μ(J_P)(F_E − R_E) + λ(J_P)(J_E − 1) cof(F_E)`.
-    fn first_piola(&self, fe: &Matrix<T, D>, q: T) -> Matrix<T, D> {
-        ConstitutiveModel::<T, D>::first_piola(&self.elastic_model(q), fe)
-    }
-
-    /// Fixed-corotated `dP` with the hardened constants (`J_P` held fixed).
-    fn first_piola_differential(
-        &self,
-        fe: &Matrix<T, D>,
-        q: T,
-        dfe: &Matrix<T, D>,
-    ) -> Matrix<T, D> {
-        ConstitutiveModel::<T, D>::first_piola_differential(&self.elastic_model(q), fe, dfe)
-    }
-
-    /// `τ = 2μ(J_P)(F_E − R_E)F_Eᵀ + λ(J_P)(J_E − 1)J_E I`.
-    fn kirchhoff_stress(&self, fe: &Matrix<T, D>, q: T) -> Matrix<T, D> {
-        ConstitutiveModel::<T, D>::kirchhoff_stress(&self.elastic_model(q), fe)
+    /// Fixed-corotated with the hardened constants μ(J_P), λ(J_P):
+    /// `Ψ = μ(J_P) Σ(σᵢ − 1)² + λ(J_P)/2 (J_E − 1)²` (`J_P` held fixed in `dP`).
+    fn elastic_part(&self, q: T) -> FixedCorotated<T> {
+        self.elastic_model(q)
     }
 
     /// `F_E = U Σ Vᵀ` (rotation-variant SVD); `Σ ← clamp(Σ, 1 − θc, 1 + θs)`;
@@ -184,10 +167,5 @@ impl<T: Real, const D: usize> ElastoplasticModel<T, D> for Snow<T> {
         *fe = u * Matrix::<T, D>::from_diagonal(&sigma) * v.transpose();
         *q *= j_trial / j_new;
         true
-    }
-
-    /// `sqrt((λ₀ + 2μ₀)/ρ)` at `J_P = 1`; see [`Snow::wave_speed_at`] for hardened snow.
-    fn wave_speed(&self, density: T) -> T {
-        self.lame.wave_speed(density)
     }
 }

@@ -12,7 +12,7 @@
 
 use crate::hencky::HenckyElasticity;
 use crate::isotropic::{deviatoric, PrincipalStrain};
-use crate::{ConstitutiveError, ConstitutiveModel, ElastoplasticModel};
+use crate::{ConstitutiveError, ElastoplasticModel};
 use mpm_math::{Matrix, Real, Vector};
 use serde::{Deserialize, Serialize};
 
@@ -80,6 +80,8 @@ impl<T: Real> VonMises<T> {
 }
 
 impl<T: Real, const D: usize> ElastoplasticModel<T, D> for VonMises<T> {
+    type Elastic = HenckyElasticity<T>;
+
     fn name(&self) -> &'static str {
         "von-mises"
     }
@@ -88,25 +90,9 @@ impl<T: Real, const D: usize> ElastoplasticModel<T, D> for VonMises<T> {
         T::zero()
     }
 
-    fn energy_density(&self, fe: &Matrix<T, D>, _q: T) -> T {
-        self.elastic.energy_density(fe)
-    }
-
-    fn first_piola(&self, fe: &Matrix<T, D>, _q: T) -> Matrix<T, D> {
-        self.elastic.first_piola(fe)
-    }
-
-    fn first_piola_differential(
-        &self,
-        fe: &Matrix<T, D>,
-        _q: T,
-        dfe: &Matrix<T, D>,
-    ) -> Matrix<T, D> {
-        self.elastic.first_piola_differential(fe, dfe)
-    }
-
-    fn kirchhoff_stress(&self, fe: &Matrix<T, D>, _q: T) -> Matrix<T, D> {
-        self.elastic.kirchhoff_stress(fe)
+    /// Hencky elasticity, independent of the hardening state.
+    fn elastic_part(&self, _q: T) -> HenckyElasticity<T> {
+        self.elastic
     }
 
     /// Radial return (module docs); `F_E ← U diag(exp ε) Vᵀ`, `q += sqrt(2/3) Δγ`.
@@ -119,9 +105,5 @@ impl<T: Real, const D: usize> ElastoplasticModel<T, D> for VonMises<T> {
             *q += T::lit(2.0 / 3.0).sqrt() * dg;
         }
         ps.store(fe, plastic)
-    }
-
-    fn wave_speed(&self, density: T) -> T {
-        self.elastic.lame.wave_speed(density)
     }
 }
