@@ -56,11 +56,11 @@
 //! The reference criterion is evaluated over all particles together.
 
 use crate::reference::ReferenceConfig;
-use mpm_constitutive::{Material, StateFault, StateMut};
+use mpm_constitutive::{Material, StateMut};
 use mpm_grid::{BlockSparseGrid, Collider, GridLayout, BLOCK};
 use mpm_kernels::{Kernel, Stencil};
 use mpm_math::{determinant, try_inverse, Matrix, Real, Vector};
-use mpm_transfer::{Particles, PhaseTimes, StepError, StepParams};
+use mpm_transfer::{particle_chunks, Particles, PhaseTimes, StepError, StepParams, PARTICLE_CHUNK};
 use rayon::prelude::*;
 use std::marker::PhantomData;
 use std::time::Instant;
@@ -122,17 +122,6 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Default
 {
     fn default() -> Self {
         Self::new()
-    }
-}
-
-/// Particles per parallel work item in G2P.
-const CHUNK: usize = 512;
-
-fn chunks<X: Send>(v: &mut [X], n: usize) -> Vec<&mut [X]> {
-    if v.is_empty() {
-        (0..n.div_ceil(CHUNK)).map(|_| Default::default()).collect()
-    } else {
-        v.chunks_mut(CHUNK).collect()
     }
 }
 
@@ -663,35 +652,22 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
             // Current-configuration velocity gradient: F⁰ⁿ⁺¹ = (I + Δt G Fˢⁿ⁻¹) F⁰ⁿ.
             let l = grad * fsn_inv;
             let model = &materials[material[p] as usize];
-            match model.advance(&mut state, &l, &l, dt) {
-                Ok(()) => None,
-                Err(StateFault::NonFinite(quantity)) => Some(StepError::NonFinite {
-                    particle: pid,
-                    quantity,
-                }),
-                Err(StateFault::Inverted(det)) => Some(StepError::Inverted {
-                    particle: pid,
-                    model: model.name(),
-                    det,
-                }),
-                Err(StateFault::NonPositiveVolume(j)) => Some(StepError::Collapsed {
-                    particle: pid,
-                    model: model.name(),
-                    j,
-                }),
-            }
+            model
+                .advance(&mut state, &l, &l, dt)
+                .err()
+                .map(|fault| StepError::from_fault(pid, model.name(), fault))
         };
 
         let first_error = (
-            chunks(x, n),
-            chunks(v, n),
-            chunks(affine, n),
-            chunks(relative_deformation, n),
-            chunks(&mut self.delta_j, n),
-            chunks(deformation, n),
-            chunks(plastic, n),
-            chunks(jacobian, n),
-            chunks(velocity_gradient, n),
+            particle_chunks(x, n),
+            particle_chunks(v, n),
+            particle_chunks(affine, n),
+            particle_chunks(relative_deformation, n),
+            particle_chunks(&mut self.delta_j, n),
+            particle_chunks(deformation, n),
+            particle_chunks(plastic, n),
+            particle_chunks(jacobian, n),
+            particle_chunks(velocity_gradient, n),
         )
             .into_par_iter()
             .enumerate()
@@ -713,10 +689,9 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
                         jacobian: js.next(),
                         velocity_gradient: ls.next(),
                     };
-                    if let Some(e) = one(c * CHUNK + k, xp, vp, as_.next(), fsn, dj, state) {
-                        if worst.as_ref().is_none_or(|w| e.particle() < w.particle()) {
-                            worst = Some(e);
-                        }
+                    if let Some(e) = one(c * PARTICLE_CHUNK + k, xp, vp, as_.next(), fsn, dj, state)
+                    {
+                        worst = Some(e.lowest(worst));
                     }
                 }
                 worst

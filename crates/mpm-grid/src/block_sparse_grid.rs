@@ -87,8 +87,8 @@ fn refill<X: Clone>(v: &mut Vec<X>, n: usize, value: X) {
 }
 
 /// `v` in chunks of `chunk`, or `count` empty slices when `v` is empty (an absent
-/// optional channel), so that it can be zipped with the present ones.
-fn optional_chunks<X>(v: &mut [X], chunk: usize, count: usize) -> Vec<&mut [X]> {
+/// optional array or channel), so that it can be zipped with the present ones.
+pub fn optional_chunks<X>(v: &mut [X], chunk: usize, count: usize) -> Vec<&mut [X]> {
     if v.is_empty() {
         (0..count).map(|_| Default::default()).collect()
     } else {

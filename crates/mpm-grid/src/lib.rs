@@ -7,6 +7,6 @@ pub mod block_sparse_grid;
 pub mod boundary;
 pub mod layout;
 
-pub use block_sparse_grid::{BlockSparseGrid, GatherView, LocalBuffer, BLOCK};
+pub use block_sparse_grid::{optional_chunks, BlockSparseGrid, GatherView, LocalBuffer, BLOCK};
 pub use boundary::{domain_walls, Collider, ColliderShape, ContactKind};
 pub use layout::{Dual, GridLayout, Single};

@@ -6,8 +6,8 @@ use crate::diagnostics::Totals;
 use crate::particles::Particles;
 use crate::scheme::{Gathered, TransferScheme};
 use crate::StepError;
-use mpm_constitutive::{Material, StateFault, StateMut};
-use mpm_grid::{BlockSparseGrid, Collider, GridLayout, BLOCK};
+use mpm_constitutive::{Material, StateMut};
+use mpm_grid::{optional_chunks, BlockSparseGrid, Collider, GridLayout, BLOCK};
 use mpm_kernels::{Kernel, Stencil};
 use mpm_math::{try_inverse, Matrix, Real, Vector};
 use rayon::prelude::*;
@@ -62,22 +62,14 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Default for ExplicitStep
     }
 }
 
-/// Whether the scene's particles carry a velocity gradient (viscous materials).
-fn p_needs_viscous<T: Real, const D: usize>(p: &Particles<T, D>) -> bool {
-    p.needs.velocity_gradient
-}
-
 /// Particles per parallel work item in G2P.
-const CHUNK: usize = 512;
+pub const PARTICLE_CHUNK: usize = 512;
 
-/// `v` split into chunks of [`CHUNK`], or as many empty slices when `v` is an absent
-/// (empty) array of a scene with `n` particles.
-fn chunks<X: Send>(v: &mut [X], n: usize) -> Vec<&mut [X]> {
-    if v.is_empty() {
-        (0..n.div_ceil(CHUNK)).map(|_| Default::default()).collect()
-    } else {
-        v.chunks_mut(CHUNK).collect()
-    }
+/// A particle array of a scene with `n` particles split into chunks of
+/// [`PARTICLE_CHUNK`] (absent arrays: as many empty slices), so that one parallel
+/// loop can zip whichever arrays the scene stores.
+pub fn particle_chunks<X>(v: &mut [X], n: usize) -> Vec<&mut [X]> {
+    optional_chunks(v, PARTICLE_CHUNK, n.div_ceil(PARTICLE_CHUNK))
 }
 
 /// The stencils of one particle on every grid of layout `L` (at most two).
@@ -195,7 +187,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
         let mls = scheme.mls_force() && !gradient_form;
         // Viscous stresses go through the MLS gradient (see
         // `Material::kirchhoff_stress_parts`), which needs D_p⁻¹.
-        let viscous = p_needs_viscous(particles) && !gradient_form;
+        let viscous = particles.needs.velocity_gradient && !gradient_form;
         let need_moment = (affine || mls || viscous) && !gradient_form;
         let separate = scheme.needs(gradient_form).old_velocity;
         let p = particles;
@@ -386,35 +378,22 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
                 None
             };
             let viscous_gradient = viscous_gradient.unwrap_or(up.velocity_gradient);
-            match model.advance(&mut state, &up.velocity_gradient, &viscous_gradient, dt) {
-                Ok(()) => None,
-                Err(StateFault::NonFinite(quantity)) => Some(StepError::NonFinite {
-                    particle: pid,
-                    quantity,
-                }),
-                Err(StateFault::Inverted(det)) => Some(StepError::Inverted {
-                    particle: pid,
-                    model: model.name(),
-                    det,
-                }),
-                Err(StateFault::NonPositiveVolume(j)) => Some(StepError::Collapsed {
-                    particle: pid,
-                    model: model.name(),
-                    j,
-                }),
-            }
+            model
+                .advance(&mut state, &up.velocity_gradient, &viscous_gradient, dt)
+                .err()
+                .map(|fault| StepError::from_fault(pid, model.name(), fault))
         };
 
         // Every array split into the same chunks (absent arrays: empty slices), so
         // one parallel loop updates whichever arrays this scene stores.
         let first_error = (
-            chunks(x, n),
-            chunks(v, n),
-            chunks(affine, n),
-            chunks(deformation, n),
-            chunks(plastic, n),
-            chunks(jacobian, n),
-            chunks(velocity_gradient, n),
+            particle_chunks(x, n),
+            particle_chunks(v, n),
+            particle_chunks(affine, n),
+            particle_chunks(deformation, n),
+            particle_chunks(plastic, n),
+            particle_chunks(jacobian, n),
+            particle_chunks(velocity_gradient, n),
         )
             .into_par_iter()
             .enumerate()
@@ -432,10 +411,8 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
                         jacobian: js.next(),
                         velocity_gradient: ls.next(),
                     };
-                    if let Some(e) = one(c * CHUNK + k, xp, vp, as_.next(), state) {
-                        if worst.as_ref().is_none_or(|w| e.particle() < w.particle()) {
-                            worst = Some(e);
-                        }
+                    if let Some(e) = one(c * PARTICLE_CHUNK + k, xp, vp, as_.next(), state) {
+                        worst = Some(e.lowest(worst));
                     }
                 }
                 worst

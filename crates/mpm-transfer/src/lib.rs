@@ -19,9 +19,10 @@ pub mod timestep;
 
 pub use apic::Apic;
 pub use diagnostics::{connected_components, particle_totals, Totals};
-pub use explicit_step::{ExplicitStepper, PhaseTimes, StepParams};
+pub use explicit_step::{particle_chunks, ExplicitStepper, PhaseTimes, StepParams, PARTICLE_CHUNK};
 pub use flip::Flip;
 pub use mls::Mls;
+use mpm_constitutive::StateFault;
 pub use particles::Particles;
 pub use pic::Pic;
 pub use scheme::{Transfer, TransferScheme};
@@ -63,6 +64,28 @@ pub enum StepError {
 }
 
 impl StepError {
+    /// The error for particle `particle` whose model `model` reported `fault`.
+    pub fn from_fault(particle: u32, model: &'static str, fault: StateFault) -> Self {
+        match fault {
+            StateFault::NonFinite(quantity) => StepError::NonFinite { particle, quantity },
+            StateFault::Inverted(det) => StepError::Inverted {
+                particle,
+                model,
+                det,
+            },
+            StateFault::NonPositiveVolume(j) => StepError::Collapsed { particle, model, j },
+        }
+    }
+
+    /// Of `self` and `other`, the error of the lowest particle id (so that the error
+    /// reported does not depend on the thread count).
+    pub fn lowest(self, other: Option<StepError>) -> StepError {
+        match other {
+            Some(o) if o.particle() <= self.particle() => o,
+            _ => self,
+        }
+    }
+
     /// The particle concerned.
     pub fn particle(&self) -> u32 {
         match self {
