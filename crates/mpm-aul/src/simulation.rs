@@ -223,7 +223,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Simulation<T, D, K, L> {
                     Transfer::Flip(f) => st.set_kernel_mpm(f.blend),
                     Transfer::Apic(_) | Transfer::Mls(_) => {}
                 }
-                Stepper::Lagrangian(st)
+                Stepper::Lagrangian(Box::new(st))
             }
         };
     }
@@ -270,7 +270,7 @@ pub enum Stepper<T: Real, const D: usize, K: Kernel, L: GridLayout> {
     /// Eulerian MPM: the explicit step of `mpm-transfer`, nothing stored.
     Eulerian(ExplicitStepper<T, D, K, L>),
     /// Total-Lagrangian or adaptive: MLS-A-ULMPM with stored reference state.
-    Lagrangian(UpdatedLagrangianStepper<T, D, K, L>),
+    Lagrangian(Box<UpdatedLagrangianStepper<T, D, K, L>>),
 }
 
 impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Simulation<T, D, K, L> {

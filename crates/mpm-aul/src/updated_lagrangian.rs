@@ -102,6 +102,8 @@ pub struct UpdatedLagrangianStepper<T: Real, const D: usize, K: Kernel, L: GridL
     kernel_mpm: Option<T>,
     /// Body of each particle, by particle id (empty: one body).
     bodies: Vec<u16>,
+    /// Lane offset of each particle in storage order (multi-body only), set at rebuild.
+    lanes: Vec<i32>,
     multi_body: bool,
     _stencil: PhantomData<(K, L)>,
 }
@@ -158,6 +160,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
             built: false,
             kernel_mpm: None,
             bodies: Vec::new(),
+            lanes: Vec::new(),
             multi_body: false,
             _stencil: PhantomData,
         }
@@ -224,6 +227,12 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
         self.cells = cells;
         let order = self.grid.bin(&self.cells);
         particles.reorder(&order);
+        // Particles keep this order until the next rebuild: so do their lanes.
+        self.lanes = if self.multi_body {
+            particles.id.iter().map(|&id| self.lane(id)).collect()
+        } else {
+            Vec::new()
+        };
         let n = particles.len();
         let npp = Self::nodes_per_particle();
         let st = &mut self.state;
@@ -336,11 +345,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
         let npp = Self::nodes_per_particle();
         let per_grid = npp / L::GRIDS;
         let (p, st) = (particles, &self.state);
-        let lanes: Vec<i32> = if self.multi_body {
-            p.id.iter().map(|&id| self.lane(id)).collect()
-        } else {
-            Vec::new()
-        };
+        let lanes = &self.lanes;
         let kernel_mpm = self.kernel_mpm;
         let flip = kernel_mpm.is_some_and(|a| a > T::zero());
         self.grid.scatter(ext, flip, true, |_home, range, buf| {
@@ -530,11 +535,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
         let npp = Self::nodes_per_particle();
         let per_grid = npp / L::GRIDS;
         let (lo, hi) = (params.domain_min, params.domain_max);
-        let lanes: Vec<i32> = if self.multi_body {
-            particles.id.iter().map(|&id| self.lane(id)).collect()
-        } else {
-            Vec::new()
-        };
+        let lanes = &self.lanes;
         let grid = &self.grid;
         let homes = grid.home_of_sorted();
         let n = particles.len();
