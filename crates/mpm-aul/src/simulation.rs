@@ -106,7 +106,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Simulation<T, D, K, L> {
             steps: 0,
             reference: Reference::Eulerian(crate::Eulerian),
             reference_updates: 0,
-            stepper: Stepper::Eulerian(ExplicitStepper::new()),
+            stepper: Stepper::Eulerian(Box::new(ExplicitStepper::new())),
             wave_speed,
             kinematic_viscosity,
         }
@@ -214,7 +214,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Simulation<T, D, K, L> {
     pub fn set_reference(&mut self, reference: Reference) {
         self.reference = reference;
         self.stepper = match reference {
-            Reference::Eulerian(_) => Stepper::Eulerian(ExplicitStepper::new()),
+            Reference::Eulerian(_) => Stepper::Eulerian(Box::new(ExplicitStepper::new())),
             _ => {
                 let mut st = UpdatedLagrangianStepper::new();
                 // PIC/FLIP transfers select the kernel-MPM variant (Appendix B).
@@ -268,7 +268,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Simulation<T, D, K, L> {
 /// The stepper a reference configuration needs.
 pub enum Stepper<T: Real, const D: usize, K: Kernel, L: GridLayout> {
     /// Eulerian MPM: the explicit step of `mpm-transfer`, nothing stored.
-    Eulerian(ExplicitStepper<T, D, K, L>),
+    Eulerian(Box<ExplicitStepper<T, D, K, L>>),
     /// Total-Lagrangian or adaptive: MLS-A-ULMPM with stored reference state.
     Lagrangian(Box<UpdatedLagrangianStepper<T, D, K, L>>),
 }
