@@ -6,8 +6,8 @@ use mpm_aul::{Adaptive, Eulerian, ReferenceConfig, TotalLagrangian, UpdatedLagra
 use mpm_constitutive::{ElasticModel, Material, NeoHookean};
 use mpm_grid::{Dual, GridLayout, Single};
 use mpm_kernels::{Compact, Kernel, QuadraticBSpline};
-use mpm_math::{affine_moment, Vector};
-use mpm_transfer::{particle_totals, ExplicitStepper, Mls, Particles, StepParams, Totals};
+use mpm_math::Vector;
+use mpm_transfer::{ExplicitStepper, Mls, Particles, StepParams};
 use nalgebra::{Matrix3, Vector3};
 
 const H: f64 = 0.02;
@@ -117,68 +117,63 @@ fn total_lagrangian_computes_weights_once() {
     assert!(!Eulerian.stores_reference_state());
 }
 
-/// Momentum and angular momentum of the particles. The affine part of an
-/// updated-Lagrangian particle is `m ε : (B Fˢⁿᵀ)`: its velocity field
-/// `B K (X − X_p)` written in current coordinates has the second moment
-/// `Fˢⁿ K⁻¹ Fˢⁿᵀ`.
-fn totals<K: Kernel, L: GridLayout>(p: &Particles<f64, 3>, fsn: &[Matrix3<f64>]) -> Totals {
-    let mut plain = p.clone();
-    plain.stores_affine = false;
-    let mut t = particle_totals::<f64, 3, K, L>(&plain, &material(), H);
-    for i in 0..p.affine.len() {
-        let f = fsn.get(i).copied().unwrap_or_else(Matrix3::identity);
-        let l = affine_moment(&(p.affine[i] * f.transpose()));
+/// Total linear momentum of the particles.
+fn momentum(p: &Particles<f64, 3>) -> [f64; 3] {
+    let mut m = [0.0; 3];
+    for i in 0..p.len() {
         for a in 0..3 {
-            t.angular_momentum[a] += l[a] * p.mass[i];
+            m[a] += p.mass[i] * p.v[i][a];
         }
     }
-    t
+    m
 }
 
-fn conservation<K: Kernel, L: GridLayout, R: ReferenceConfig>(reference: R) -> (f64, f64, u64) {
+/// Relative change of linear momentum over 200 free-flight steps, and rebuilds.
+/// (Angular momentum is not conserved to round-off by this formulation: the
+/// transfers conserve it for the reference positions, not the current ones; the
+/// drift measured is reported in the issue note, not asserted here.)
+fn linear_momentum_drift<K: Kernel, L: GridLayout, R: ReferenceConfig>(reference: R) -> (f64, u64) {
     let mats = material();
     let mut p = spinning_box();
     let mut us = UpdatedLagrangianStepper::<f64, 3, K, L>::new();
-    let a = totals::<K, L>(&p, &[]);
+    let a = momentum(&p);
     for _ in 0..200 {
         us.step(&mut p, &mats, &reference, &params()).unwrap();
     }
-    let b = totals::<K, L>(&p, &us.state.relative_deformation);
-    let rel = |x: [f64; 3], y: [f64; 3]| {
-        let d: f64 = (0..3).map(|i| (x[i] - y[i]).powi(2)).sum::<f64>().sqrt();
-        d / x.iter().map(|c| c * c).sum::<f64>().sqrt()
-    };
-    (
-        rel(a.momentum, b.momentum),
-        rel(a.angular_momentum, b.angular_momentum),
-        us.rebuilds,
-    )
+    let b = momentum(&p);
+    let d: f64 = (0..3).map(|i| (a[i] - b[i]).powi(2)).sum::<f64>().sqrt();
+    (d / a.iter().map(|c| c * c).sum::<f64>().sqrt(), us.rebuilds)
 }
 
 #[test]
-fn conservation_in_free_flight() {
+fn linear_momentum_in_free_flight() {
     let adaptive = Adaptive {
         epsilon: 0.01,
         eta: 0.05,
     };
-    for (name, (lin, ang, rebuilds)) in [
+    for (name, (lin, rebuilds)) in [
         (
             "TL quadratic",
-            conservation::<QuadraticBSpline, Single, _>(TotalLagrangian),
+            linear_momentum_drift::<QuadraticBSpline, Single, _>(TotalLagrangian),
         ),
         (
             "TL compact",
-            conservation::<Compact, Dual, _>(TotalLagrangian),
+            linear_momentum_drift::<Compact, Dual, _>(TotalLagrangian),
         ),
         (
             "A-UL quadratic",
-            conservation::<QuadraticBSpline, Single, _>(adaptive),
+            linear_momentum_drift::<QuadraticBSpline, Single, _>(adaptive),
         ),
-        ("A-UL compact", conservation::<Compact, Dual, _>(adaptive)),
+        (
+            "A-UL compact",
+            linear_momentum_drift::<Compact, Dual, _>(adaptive),
+        ),
     ] {
-        println!("{name}: linear {lin:e}, angular {ang:e}, rebuilds {rebuilds}");
+        // Sums of ~600 particles × 27–16 nodes over 200 steps: round-off ≪ 1e-12.
         assert!(lin < 1e-12, "{name}: linear momentum drift {lin:e}");
-        let _ = ang;
+        if name.starts_with("A-UL") {
+            assert!(rebuilds > 1, "{name}: the adaptive run should rebuild");
+        }
     }
 }
 
@@ -219,7 +214,7 @@ fn two_bodies_with_separate_references_collide() {
                 }
             }
         }
-        let start = totals::<K, L>(&p, &[]);
+        let start = momentum(&p);
         let mut us = UpdatedLagrangianStepper::<f64, 3, K, L>::new();
         us.set_bodies(bodies.clone());
         let mut deepest: f64 = f64::NEG_INFINITY;
@@ -237,12 +232,10 @@ fn two_bodies_with_separate_references_collide() {
             deepest = deepest.max(right0 - left1);
         }
         assert_eq!(us.rebuilds, 1);
-        let end = totals::<K, L>(&p, &[]);
-        let scale: f64 = start.momentum.iter().map(|c| c.abs()).sum::<f64>() + 1e-300;
+        let end = momentum(&p);
+        let scale: f64 = start.iter().map(|c| c.abs()).sum::<f64>() + 1e-300;
         let one_body = 1000.0 * vol * 1728.0; // |p| of one body at 1 m/s
-        let drift: f64 = (0..3)
-            .map(|a| (end.momentum[a] - start.momentum[a]).abs())
-            .sum();
+        let drift: f64 = (0..3).map(|a| (end[a] - start[a]).abs()).sum();
         assert!(
             drift < 1e-10 * one_body,
             "{}: momentum drift {drift:e} (total {scale:e})",
@@ -310,13 +303,13 @@ fn kernel_mpm_variant_matches_eulerian_pic_and_flip() {
         let mut p = spinning_box();
         p.stores_affine = false;
         p.affine.clear();
-        let before = totals::<K, L>(&p, &[]).momentum;
+        let before = momentum(&p);
         let mut tl = UpdatedLagrangianStepper::<f64, 3, K, L>::new();
         tl.set_kernel_mpm(flip);
         for _ in 0..200 {
             tl.step(&mut p, &mats, &TotalLagrangian, &params()).unwrap();
         }
-        let after = totals::<K, L>(&p, &[]).momentum;
+        let after = momentum(&p);
         let drift: f64 = (0..3).map(|i| (after[i] - before[i]).abs()).sum();
         let scale: f64 = before.iter().map(|c| c.abs()).sum();
         assert!(
