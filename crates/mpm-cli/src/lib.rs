@@ -1,6 +1,7 @@
 //! The `mpm` command-line tool as a library: scene files ([`scene`]), particle
-//! sampling ([`sampling`]), output writers ([`output`]) and `mpm run` ([`run`]).
+//! sampling ([`sampling`]), output writers ([`output`]) `mpm run` ([`run`]) and `mpm bench` ([`bench`]).
 
+pub mod bench;
 pub mod output;
 pub mod run;
 pub mod sampling;

@@ -1,6 +1,7 @@
 //! The `mpm` command-line tool.
 
 use clap::{Parser, Subcommand};
+use mpm_cli::bench;
 use mpm_cli::run::{run_scene, RunOptions};
 use mpm_cli::scene::{load_scene, parse_scene, Scene, SceneError};
 use std::path::PathBuf;
@@ -34,6 +35,50 @@ enum Command {
         /// Stop after this many output frames (frame 0, the initial state, not counted).
         #[arg(long)]
         frames: Option<usize>,
+    },
+    /// Time the peers' benchmark scenes (Taichi/Warp, ../shared/peers) or a scene file:
+    /// warm-up, repeated timed segments, best and median throughput, phase times,
+    /// memory and a sanity line; `--json FILE` appends records with the peers' keys.
+    Bench {
+        /// Scene file to time instead of the peer scenes.
+        scene: Option<PathBuf>,
+        /// Peer scenes to run.
+        #[arg(long, value_enum, value_delimiter = ',', default_values = ["jelly", "dam"])]
+        scenes: Vec<mpm_cli::bench::PeerScene>,
+        /// Kernels to run (compact on the dual grid, quadratic on one grid).
+        #[arg(long, value_enum, value_delimiter = ',', default_values = ["compact", "quadratic"])]
+        kernels: Vec<mpm_cli::bench::BenchKernel>,
+        /// Peer sizes: S (262,144 particles) and/or L (1,061,208).
+        #[arg(long, value_delimiter = ',', default_values = ["S"])]
+        sizes: Vec<String>,
+        /// Transfer for the peer scenes: apic (gradient force, the peers' `grad`
+        /// form) or mls.
+        #[arg(long, default_value = "apic")]
+        transfer: String,
+        /// Thread counts to run, e.g. `2,1` [default: all cores].
+        #[arg(long, value_delimiter = ',')]
+        threads: Vec<usize>,
+        /// Cells per axis (a custom size; with --fill).
+        #[arg(long)]
+        n: Option<usize>,
+        /// Edge of the particle block as a fraction of the domain (with --n).
+        #[arg(long)]
+        fill: Option<f64>,
+        /// Untimed warm-up steps [default: the size's].
+        #[arg(long)]
+        warmup: Option<usize>,
+        /// Steps per timed segment [default: the size's].
+        #[arg(long)]
+        steps: Option<usize>,
+        /// Timed segments [default: 3].
+        #[arg(long)]
+        repeats: Option<usize>,
+        /// Append one JSON record per run to this file.
+        #[arg(long)]
+        json: Option<PathBuf>,
+        /// Override a key of the scene file.
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        set: Vec<String>,
     },
     /// Parse and check a scene file; simulate nothing.
     Validate {
@@ -82,6 +127,41 @@ fn load(scene: Option<&PathBuf>, set: &[String]) -> Result<(Scene, String, Strin
 fn main() -> ExitCode {
     let cli = Cli::parse();
     match cli.command {
+        Command::Bench {
+            scene,
+            scenes,
+            kernels,
+            sizes,
+            transfer,
+            threads,
+            n,
+            fill,
+            warmup,
+            steps,
+            repeats,
+            json,
+            set,
+        } => {
+            let args = BenchArgs {
+                scene,
+                scenes,
+                kernels,
+                sizes,
+                transfer,
+                threads,
+                custom: (n, fill),
+                timing: (warmup, steps, repeats),
+                json,
+                set,
+            };
+            match bench(args) {
+                Ok(()) => ExitCode::SUCCESS,
+                Err(e) => {
+                    eprintln!("error: {e}");
+                    ExitCode::FAILURE
+                }
+            }
+        }
         Command::Validate { scene, set } => match load(Some(&scene), &set) {
             Ok((scene, origin, _)) => {
                 let s = &scene.simulation;
@@ -168,4 +248,119 @@ fn main() -> ExitCode {
             }
         }
     }
+}
+
+struct BenchArgs {
+    scene: Option<PathBuf>,
+    scenes: Vec<bench::PeerScene>,
+    kernels: Vec<bench::BenchKernel>,
+    sizes: Vec<String>,
+    transfer: String,
+    threads: Vec<usize>,
+    custom: (Option<usize>, Option<f64>),
+    timing: (Option<usize>, Option<usize>, Option<usize>),
+    json: Option<PathBuf>,
+    set: Vec<String>,
+}
+
+fn bench(a: BenchArgs) -> Result<(), String> {
+    let threads = if a.threads.is_empty() {
+        vec![std::thread::available_parallelism().map_or(1, |n| n.get())]
+    } else {
+        a.threads.clone()
+    };
+    if threads.contains(&0) {
+        return Err("--threads: thread counts must be at least 1".into());
+    }
+    let mls = match a.transfer.as_str() {
+        "apic" => false,
+        "mls" => true,
+        other => {
+            return Err(format!(
+                "--transfer: \"{other}\" is not a benchmark transfer; use apic or mls"
+            ))
+        }
+    };
+    let mut sizes = Vec::new();
+    match a.custom {
+        (Some(n), Some(fill)) => {
+            if !((8..=1024).contains(&n) && fill > 0.0 && fill <= 0.88) {
+                return Err("--n must be in 8..=1024 and --fill in (0, 0.88] (the block must fit inside the walls)".into());
+            }
+            sizes.push((
+                "custom".to_string(),
+                bench::PeerSize {
+                    n,
+                    fill,
+                    ..bench::PeerSize::S
+                },
+            ));
+        }
+        (None, None) => {
+            for s in &a.sizes {
+                let size = match s.as_str() {
+                    "S" | "s" => bench::PeerSize::S,
+                    "L" | "l" => bench::PeerSize::L,
+                    other => {
+                        return Err(format!(
+                            "--sizes: \"{other}\" is not a size; use S, L or S,L"
+                        ))
+                    }
+                };
+                sizes.push((s.to_uppercase(), size));
+            }
+        }
+        _ => return Err("--n and --fill go together (a custom size needs both)".into()),
+    }
+    let (warmup, steps, repeats) = a.timing;
+    if steps == Some(0) || repeats == Some(0) {
+        return Err("--steps and --repeats must be at least 1".into());
+    }
+    let adjust = |mut s: bench::PeerSize| {
+        s.warmup = warmup.unwrap_or(s.warmup);
+        s.steps = steps.unwrap_or(s.steps);
+        s.repeats = repeats.unwrap_or(s.repeats);
+        s
+    };
+    let emit = |rec: &serde_json::Value| -> Result<(), String> {
+        print!("{}", bench::describe(rec));
+        println!();
+        if let Some(path) = &a.json {
+            bench::append_json(path, rec)?;
+        }
+        Ok(())
+    };
+    if let Some(path) = &a.scene {
+        let scene = load_scene(path, &a.set).map_err(|e| e.to_string())?;
+        let size = adjust(bench::PeerSize {
+            warmup: 5,
+            steps: 20,
+            ..bench::PeerSize::S
+        });
+        for &t in &threads {
+            let rec = bench::run_scene_file(&scene, &path.display().to_string(), &size, t)
+                .map_err(|e| e.to_string())?;
+            emit(&rec)?;
+        }
+        return Ok(());
+    }
+    for (label, size) in &sizes {
+        for &scene in &a.scenes {
+            for &t in &threads {
+                for &kernel in &a.kernels {
+                    let run = bench::PeerRun {
+                        scene,
+                        kernel,
+                        mls,
+                        size: adjust(*size),
+                        threads: t,
+                    };
+                    println!("== {} {label} {} threads={t}", scene.name(), kernel.name());
+                    let rec = bench::run_peer(&run)?;
+                    emit(&rec)?;
+                }
+            }
+        }
+    }
+    Ok(())
 }

@@ -125,7 +125,7 @@ fn inside(shape: &Shape, dim: usize, p: &[f64; 3], axis: &[f64; 3]) -> bool {
 
 /// splitmix64: a tiny, well-mixed hash so jittered sampling is reproducible without
 /// a random-number crate.
-fn splitmix64(state: &mut u64) -> u64 {
+pub(crate) fn splitmix64(state: &mut u64) -> u64 {
     *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
     let mut z = *state;
     z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
@@ -133,7 +133,7 @@ fn splitmix64(state: &mut u64) -> u64 {
     z ^ (z >> 31)
 }
 
-fn unit_f64(state: &mut u64) -> f64 {
+pub(crate) fn unit_f64(state: &mut u64) -> f64 {
     // 53 random bits → [0, 1).
     (splitmix64(state) >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
 }

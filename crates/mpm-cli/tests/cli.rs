@@ -292,3 +292,102 @@ fn blow_up_stops_with_step_particle_and_quantity() {
     let stats = std::fs::read_to_string(out_dir.join("stats.csv")).unwrap();
     assert!(stats.lines().count() >= 2);
 }
+
+/// `mpm bench` on a tiny peer scene: one record per kernel with the peers' keys,
+/// the particle count the peers' formula gives ((2·round(fill·n))³), a sane state and
+/// per-phase times that add up to no more than the step.
+#[test]
+fn bench_writes_peer_records() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let json = dir.path().join("results.jsonl");
+    let out = mpm(&[
+        "bench",
+        "--scenes",
+        "jelly,dam",
+        "--n",
+        "16",
+        "--fill",
+        "0.5",
+        "--warmup",
+        "1",
+        "--steps",
+        "2",
+        "--repeats",
+        "2",
+        "--threads",
+        "1",
+        "--json",
+        json.to_str().expect("utf-8 path"),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(stdout.matches("SANE").count(), 4, "{stdout}");
+    let text = std::fs::read_to_string(&json).expect("json written");
+    let recs: Vec<serde_json::Value> = text
+        .lines()
+        .map(|l| serde_json::from_str(l).expect("one JSON record per line"))
+        .collect();
+    assert_eq!(recs.len(), 4);
+    for r in &recs {
+        for key in [
+            "impl",
+            "kernel",
+            "form",
+            "scene",
+            "threads",
+            "n",
+            "particles",
+            "mpps",
+            "mpps_median",
+            "ms_per_step",
+            "walls",
+            "cpu_share",
+            "start",
+            "end",
+            "sane",
+        ] {
+            assert!(r.get(key).is_some(), "record lacks {key}: {r}");
+        }
+        assert_eq!(r["particles"], 4096);
+        assert_eq!(r["sane"], true);
+        let nodes = if r["kernel"] == "compact" { 16 } else { 27 };
+        assert_eq!(r["nodes_per_particle"], nodes);
+        let ph = &r["phases_ms_per_step"];
+        let sum: f64 = ["sort", "p2g", "grid_update", "g2p"]
+            .iter()
+            .map(|k| ph[*k].as_f64().expect("phase time"))
+            .sum();
+        // Phases are timed over all timed segments; the best segment can be faster
+        // than their mean, so compare with the mean step time.
+        let walls: Vec<f64> = r["walls"]
+            .as_array()
+            .expect("walls")
+            .iter()
+            .map(|w| w.as_f64().expect("f64"))
+            .collect();
+        let mean_ms = 1e3 * walls.iter().sum::<f64>() / (walls.len() as f64 * 2.0);
+        assert!(
+            sum <= mean_ms * 1.05 + 0.05,
+            "phases {sum} ms > step {mean_ms} ms"
+        );
+    }
+}
+
+#[test]
+fn bench_rejects_bad_options() {
+    for (args, says) in [
+        (vec!["bench", "--n", "16"], "--n and --fill go together"),
+        (vec!["bench", "--sizes", "XL"], "--sizes"),
+        (vec!["bench", "--transfer", "flip"], "--transfer"),
+        (vec!["bench", "--threads", "0"], "--threads"),
+    ] {
+        let out = mpm(&args);
+        assert!(!out.status.success());
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains(says), "{args:?}: {err}");
+    }
+}

@@ -4,7 +4,10 @@
 //! Defined and finite for every `F`, inverted and singular ones included.
 
 use crate::{ConstitutiveError, ConstitutiveModel, Lame};
-use mpm_math::{cofactor, cofactor_differential, determinant, svd_rotation_variant, Matrix, Real};
+use mpm_math::{
+    cofactor, cofactor_differential, determinant, polar_rotation, svd_rotation_variant, Matrix,
+    Real,
+};
 use serde::{Deserialize, Serialize};
 
 /// Fixed-corotated hyperelastic model.
@@ -77,19 +80,17 @@ fn rotation_differential<T: Real, const D: usize>(
 }
 
 impl<T: Real, const D: usize> ConstitutiveModel<T, D> for FixedCorotated<T> {
-    /// `Ψ = μ Σ(σᵢ − 1)² + λ/2 (J − 1)²` (`‖F − R‖² = ‖Σ − I‖²` with signed σ).
+    /// `Ψ = μ‖F − R‖² + λ/2 (J − 1)²` (`= μ Σ(σᵢ − 1)² + …` with signed σ).
     fn energy_density(&self, f: &Matrix<T, D>) -> T {
-        let (_, sigma, _) = svd_rotation_variant(f);
         let j = determinant(f);
-        let dev = sigma.map(|s| (s - T::one()) * (s - T::one())).sum();
+        let dev = (f - polar_rotation(f)).norm_squared();
         let vol = (j - T::one()) * (j - T::one());
         self.lame.mu * dev + self.lame.lambda * T::lit(0.5) * vol
     }
 
     /// `P = 2μ(F − R) + λ(J − 1) cof(F)`, `cof(F) = J F⁻ᵀ` (smooth for singular F).
     fn first_piola(&self, f: &Matrix<T, D>) -> Matrix<T, D> {
-        let (u, _, v) = svd_rotation_variant(f);
-        let r = u * v.transpose();
+        let r = polar_rotation(f);
         let j = determinant(f);
         (f - r) * (T::lit(2.0) * self.lame.mu) + cofactor(f) * (self.lame.lambda * (j - T::one()))
     }
@@ -109,8 +110,7 @@ impl<T: Real, const D: usize> ConstitutiveModel<T, D> for FixedCorotated<T> {
 
     /// `τ = 2μ(F − R)Fᵀ + λ(J − 1)J I` (uses `cof(F) Fᵀ = J I`).
     fn kirchhoff_stress(&self, f: &Matrix<T, D>) -> Matrix<T, D> {
-        let (u, _, v) = svd_rotation_variant(f);
-        let r = u * v.transpose();
+        let r = polar_rotation(f);
         let j = determinant(f);
         let mut tau = (f - r) * f.transpose() * (T::lit(2.0) * self.lame.mu);
         let vol = self.lame.lambda * (j - T::one()) * j;

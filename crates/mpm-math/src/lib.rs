@@ -1,15 +1,18 @@
 //! The small shared vocabulary of the MPM crates: the scalar trait [`Real`]
 //! (implemented for `f32` and `f64`), fixed-size vectors and matrices generic over
 //! the dimension `D` (2 or 3), and the few small-matrix operations every crate needs
-//! (determinant, cofactor, inverse, rotation-variant SVD, polar decomposition).
+//! (determinant, cofactor, inverse, rotation-variant SVD, polar decomposition and a
+//! fast polar rotation).
 //!
 //! nalgebra's decompositions need dimension bounds that a plain `const D: usize`
 //! cannot satisfy, so the functions here dispatch on `D` (a compile-time constant:
 //! the branch folds away) to nalgebra's 2×2 and 3×3 types.
 
+mod polar;
 mod small;
 
 pub use nalgebra;
+pub use polar::polar_rotation;
 pub use small::*;
 
 use nalgebra::{RealField, SMatrix, SVector};
