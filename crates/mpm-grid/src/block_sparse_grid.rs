@@ -68,6 +68,35 @@ impl<T: Real, const D: usize> LocalBuffer<'_, T, D> {
 }
 
 impl<T: Real, const D: usize> LocalBuffer<'_, T, D> {
+    /// Flat index of node `node` of grid `grid` in this buffer; node `node + j` is at
+    /// `index + Σₐ jₐ·strides()[a]` (for loops that step through a stencil).
+    #[inline(always)]
+    pub fn index_of(&self, grid: usize, node: &[i32; D]) -> usize {
+        self.local_index(grid, node)
+    }
+
+    /// Index steps per axis (x fastest).
+    #[inline(always)]
+    pub fn strides(&self) -> [usize; D] {
+        let mut s = [1usize; D];
+        for a in 1..D {
+            s[a] = s[a - 1] * self.ext;
+        }
+        s
+    }
+
+    /// [`Self::add`] at a flat index from [`Self::index_of`] and [`Self::strides`].
+    #[inline(always)]
+    pub fn add_at(&mut self, i: usize, mass: T, momentum: &Vector<T, D>, impulse: &Vector<T, D>) {
+        self.mass[i] += mass;
+        if self.impulse.is_empty() {
+            self.momentum[i] += momentum + impulse;
+        } else {
+            self.momentum[i] += momentum;
+            self.impulse[i] += impulse;
+        }
+    }
+
     /// Adds a mass-weighted position `m w x_p` (for the current nodal positions
     /// `q_i = Σ m w x_p / m_i` of updated-Lagrangian MPM). Ignored unless the scatter
     /// keeps positions.
@@ -122,6 +151,47 @@ impl<'a, T: Real, const D: usize> GatherView<'a, T, D> {
         debug_assert!(block != NONE as usize);
         grid * self.grid_stride + block * stride + local
     }
+    /// Indexer for the nodes `first + j`, `j ∈ [0, nodes_per_axis)^D`, of grid `grid`
+    /// (at most 4 nodes per axis): the block and in-block offsets are worked out once
+    /// per axis, so each node costs a table lookup and a few additions.
+    #[inline(always)]
+    pub fn indexer(&self, grid: usize, first: &[i32; D], nodes_per_axis: usize) -> NodeIndexer<D> {
+        let npb = (BLOCK as usize).pow(D as u32);
+        let mut code = [[0usize; 4]; D];
+        let mut local = [[0usize; 4]; D];
+        let mut stride = 1usize;
+        for a in 0..D {
+            for j in 0..nodes_per_axis.min(4) {
+                let r = (first[a] + j as i32 - self.origin[a]) as usize;
+                code[a][j] = (r >> 2) << a;
+                local[a][j] = (r & 3) * stride;
+            }
+            stride *= BLOCK as usize;
+        }
+        let mut blocks = [0usize; 8];
+        for (b, n) in blocks.iter_mut().zip(self.neighbors.iter()).take(1 << D) {
+            *b = if *n == NONE {
+                usize::MAX / 2
+            } else {
+                grid * self.grid_stride + *n as usize * npb
+            };
+        }
+        NodeIndexer {
+            code,
+            local,
+            blocks,
+        }
+    }
+    /// Velocity after the grid update at a flat index from [`Self::indexer`].
+    #[inline(always)]
+    pub fn velocity_at(&self, i: usize) -> Vector<T, D> {
+        self.velocity[i]
+    }
+    /// Velocity before the grid update at a flat index (FLIP only).
+    #[inline(always)]
+    pub fn velocity_old_at(&self, i: usize) -> Vector<T, D> {
+        self.velocity_old[i]
+    }
     /// Velocity after the grid update at node `node` of grid `grid`.
     #[inline(always)]
     pub fn velocity(&self, grid: usize, node: &[i32; D]) -> Vector<T, D> {
@@ -131,6 +201,28 @@ impl<'a, T: Real, const D: usize> GatherView<'a, T, D> {
     #[inline(always)]
     pub fn velocity_old(&self, grid: usize, node: &[i32; D]) -> Vector<T, D> {
         self.velocity_old[self.flat(grid, node)]
+    }
+}
+
+/// Flat grid indices of a stencil's nodes, from [`GatherView::indexer`].
+#[derive(Clone, Copy, Debug)]
+pub struct NodeIndexer<const D: usize> {
+    code: [[usize; 4]; D],
+    local: [[usize; 4]; D],
+    blocks: [usize; 8],
+}
+
+impl<const D: usize> NodeIndexer<D> {
+    /// Flat index of the node at local offsets `j`.
+    #[inline(always)]
+    pub fn index(&self, j: &[usize; D]) -> usize {
+        let mut code = 0usize;
+        let mut local = 0usize;
+        for a in 0..D {
+            code |= self.code[a][j[a]];
+            local += self.local[a][j[a]];
+        }
+        self.blocks[code] + local
     }
 }
 

@@ -7,6 +7,8 @@ pub mod block_sparse_grid;
 pub mod boundary;
 pub mod layout;
 
-pub use block_sparse_grid::{optional_chunks, BlockSparseGrid, GatherView, LocalBuffer, BLOCK};
+pub use block_sparse_grid::{
+    optional_chunks, BlockSparseGrid, GatherView, LocalBuffer, NodeIndexer, BLOCK,
+};
 pub use boundary::{domain_walls, Collider, ColliderShape, ContactKind};
 pub use layout::{Dual, GridLayout, Single};

@@ -50,15 +50,37 @@ impl Kernel for Compact {
     fn weights_1d<T: Real>(xg: T) -> Weights1d<T> {
         let base = xg.floor_index();
         let f = xg - T::lit(base as f64);
-        let two_pi = T::two_pi();
-        let (sn, cs) = (two_pi * f).sin_cos();
-        let s = sn / two_pi;
-        let mut w = [T::zero(); MAX_NODES_PER_AXIS];
-        let mut dw = [T::zero(); MAX_NODES_PER_AXIS];
-        w[0] = T::one() - f + s;
-        w[1] = f - s;
-        dw[0] = cs - T::one();
-        dw[1] = T::one() - cs;
-        Weights1d { base, w, dw }
+        let (sn, cs) = f.sin_cos_turns();
+        from_sin_cos(base, f, sn, cs)
     }
+
+    /// On grids half a cell apart `f₁ ≡ f₀ ± ½ (mod 1)`, so `sin 2πf₁ = −sin 2πf₀` and
+    /// `cos 2πf₁ = −cos 2πf₀`: one sin/cos pair per axis serves both grids, and the
+    /// first-moment errors `∓sin(2πf)/2π` of the two grids cancel exactly.
+    #[inline(always)]
+    fn weights_1d_half_apart<T: Real>(xg0: T, xg1: T) -> (Weights1d<T>, Weights1d<T>) {
+        let base0 = xg0.floor_index();
+        let f0 = xg0 - T::lit(base0 as f64);
+        let (sn, cs) = f0.sin_cos_turns();
+        let base1 = xg1.floor_index();
+        let f1 = xg1 - T::lit(base1 as f64);
+        (
+            from_sin_cos(base0, f0, sn, cs),
+            from_sin_cos(base1, f1, -sn, -cs),
+        )
+    }
+}
+
+/// `N(f) = 1 − f + s`, `N(f − 1) = f − s` with `s = sin(2πf)/(2π)`, and derivatives
+/// `cos 2πf − 1`, `1 − cos 2πf`, from `sin 2πf` and `cos 2πf`.
+#[inline(always)]
+fn from_sin_cos<T: Real>(base: i32, f: T, sin: T, cos: T) -> Weights1d<T> {
+    let s = sin / T::two_pi();
+    let mut w = [T::zero(); MAX_NODES_PER_AXIS];
+    let mut dw = [T::zero(); MAX_NODES_PER_AXIS];
+    w[0] = T::one() - f + s;
+    w[1] = f - s;
+    dw[0] = cos - T::one();
+    dw[1] = T::one() - cos;
+    Weights1d { base, w, dw }
 }

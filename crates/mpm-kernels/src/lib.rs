@@ -82,6 +82,14 @@ pub trait Kernel: Copy + Default + Send + Sync + std::fmt::Debug + 'static {
         }
         Weights1d { base, w, dw }
     }
+
+    /// Weights at two positions `xg0` and `xg1 = xg0 ± 1/2` (one particle on the two
+    /// grids of the dual layout, whose offsets differ by half a cell). The default
+    /// evaluates both; the compact kernel reuses its sin/cos (see [`Compact`]).
+    #[inline(always)]
+    fn weights_1d_half_apart<T: Real>(xg0: T, xg1: T) -> (Weights1d<T>, Weights1d<T>) {
+        (Self::weights_1d(xg0), Self::weights_1d(xg1))
+    }
 }
 
 #[cfg(test)]

@@ -50,6 +50,73 @@ impl<T: Real, const D: usize> Stencil<T, D> {
         }
     }
 
+    /// Stencils of kernel `K` on two grids with offsets `offset0` and `offset1`; when
+    /// they differ by exactly half a cell (the dual layout) the kernel may share work
+    /// between them ([`Kernel::weights_1d_half_apart`]).
+    #[inline(always)]
+    pub fn pair<K: Kernel>(x: &Vector<T, D>, inv_h: T, offset0: T, offset1: T) -> [Self; 2] {
+        let half_apart = (offset1 - offset0).abs() == T::lit(0.5);
+        if !half_apart {
+            return [
+                Self::new::<K>(x, inv_h, offset0),
+                Self::new::<K>(x, inv_h, offset1),
+            ];
+        }
+        let mut out = [Self {
+            base: [0; D],
+            w: [[T::zero(); MAX_NODES_PER_AXIS]; D],
+            dw: [[T::zero(); MAX_NODES_PER_AXIS]; D],
+            frac: [T::zero(); D],
+            n: K::NODES_PER_AXIS,
+            inv_h,
+        }; 2];
+        for a in 0..D {
+            let xg0 = x[a] * inv_h - offset0;
+            let xg1 = x[a] * inv_h - offset1;
+            let (k0, k1) = K::weights_1d_half_apart(xg0, xg1);
+            for (s, (k, xg)) in out.iter_mut().zip([(k0, xg0), (k1, xg1)]) {
+                s.base[a] = k.base;
+                s.w[a] = k.w;
+                s.dw[a] = k.dw;
+                s.frac[a] = xg - T::lit(k.base as f64);
+            }
+        }
+        out
+    }
+
+    /// Per-axis local offsets of the `q`-th node of kernel `K`'s stencil: like
+    /// [`Self::local`] with the node count known at compile time, so loops over
+    /// `0..K::NODES_PER_AXIS^D` unroll.
+    #[inline(always)]
+    pub fn local_of<K: Kernel>(q: usize) -> [usize; D] {
+        let mut j = [0usize; D];
+        let mut r = q;
+        for ja in j.iter_mut() {
+            *ja = r % K::NODES_PER_AXIS;
+            r /= K::NODES_PER_AXIS;
+        }
+        j
+    }
+
+    /// First and second moments of the 1-D weights per axis,
+    /// `m₁ₐ = Σⱼ wₐⱼ rₐⱼ` and `m₂ₐ = Σⱼ wₐⱼ rₐⱼ²` with `rₐⱼ = (j − fracₐ)·h`.
+    /// With per-axis partition of unity (`Σⱼ wₐⱼ = 1`, every kernel here) the tensor
+    /// product gives `Σᵢ wᵢ rᵢ rᵢᵀ = diag(m₂) + (m₁ m₁ᵀ − diag(m₁²))`: `O(D·n)`
+    /// instead of `O(nᴰ)`.
+    #[inline(always)]
+    pub fn axis_moments(&self, h: T) -> ([T; D], [T; D]) {
+        let mut m1 = [T::zero(); D];
+        let mut m2 = [T::zero(); D];
+        for a in 0..D {
+            for j in 0..self.n {
+                let r = (T::lit(j as f64) - self.frac[a]) * h;
+                m1[a] += self.w[a][j] * r;
+                m2[a] += self.w[a][j] * r * r;
+            }
+        }
+        (m1, m2)
+    }
+
     /// Number of nodes touched (`n^D`).
     #[inline(always)]
     pub fn node_count(&self) -> usize {

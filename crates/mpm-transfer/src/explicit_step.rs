@@ -8,7 +8,7 @@ use crate::scheme::{Gathered, TransferScheme};
 use crate::StepError;
 use mpm_constitutive::{Material, StateMut};
 use mpm_grid::{optional_chunks, BlockSparseGrid, Collider, GridLayout, BLOCK};
-use mpm_kernels::{Kernel, Stencil};
+use mpm_kernels::{Kernel, Stencil, MAX_NODES_PER_AXIS};
 use mpm_math::{try_inverse, Matrix, Real, Vector};
 use rayon::prelude::*;
 use std::marker::PhantomData;
@@ -78,16 +78,16 @@ pub fn stencils<T: Real, const D: usize, K: Kernel, L: GridLayout>(
     x: &Vector<T, D>,
     inv_h: T,
 ) -> [Stencil<T, D>; 2] {
-    let s0 = Stencil::new::<K>(x, inv_h, T::lit(L::offset(0)));
-    let s1 = if L::GRIDS > 1 {
-        Stencil::new::<K>(x, inv_h, T::lit(L::offset(1)))
+    if L::GRIDS > 1 {
+        Stencil::pair::<K>(x, inv_h, T::lit(L::offset(0)), T::lit(L::offset(1)))
     } else {
-        s0
-    };
-    [s0, s1]
+        let s0 = Stencil::new::<K>(x, inv_h, T::lit(L::offset(0)));
+        [s0, s0]
+    }
 }
 
-/// `D_p = (1/GRIDS) Σ_k Σ_i w r rᵀ` from a particle's stencils.
+/// `D_p = (1/GRIDS) Σ_k Σ_i w r rᵀ` from a particle's stencils, through the per-axis
+/// moments of the tensor-product weights ([`Stencil::axis_moments`]).
 #[inline(always)]
 pub fn moment_matrix<T: Real, const D: usize, L: GridLayout>(
     st: &[Stencil<T, D>; 2],
@@ -95,13 +95,57 @@ pub fn moment_matrix<T: Real, const D: usize, L: GridLayout>(
 ) -> Matrix<T, D> {
     let mut d = Matrix::<T, D>::zeros();
     for s in st.iter().take(L::GRIDS) {
-        for q in 0..s.node_count() {
-            let j = s.local(q);
-            let r = s.offset_to_node(&j, h);
-            d += r * r.transpose() * s.weight(&j);
+        let (m1, m2) = s.axis_moments(h);
+        for a in 0..D {
+            for b in 0..D {
+                d[(a, b)] += if a == b { m2[a] } else { m1[a] * m1[b] };
+            }
         }
     }
     d * T::lit(L::gather_weight())
+}
+
+/// Per-axis tables of one stencil: offsets `rₐⱼ = (j − fracₐ)·h` and physical
+/// derivatives `N'ₐⱼ/h`, so that a node's `r` and `∇w` are products of table entries.
+#[inline(always)]
+fn axis_tables<T: Real, const D: usize, K: Kernel>(
+    s: &Stencil<T, D>,
+    h: T,
+) -> ([[T; MAX_NODES_PER_AXIS]; D], [[T; MAX_NODES_PER_AXIS]; D]) {
+    let mut r = [[T::zero(); MAX_NODES_PER_AXIS]; D];
+    let mut g = [[T::zero(); MAX_NODES_PER_AXIS]; D];
+    for a in 0..D {
+        for j in 0..K::NODES_PER_AXIS {
+            r[a][j] = (T::lit(j as f64) - s.frac[a]) * h;
+            g[a][j] = s.dw[a][j] * s.inv_h;
+        }
+    }
+    (r, g)
+}
+
+/// Weight, gradient and offset of the node at local offsets `j` from the tables.
+#[inline(always)]
+fn node_terms<T: Real, const D: usize>(
+    s: &Stencil<T, D>,
+    r_axis: &[[T; MAX_NODES_PER_AXIS]; D],
+    g_axis: &[[T; MAX_NODES_PER_AXIS]; D],
+    j: &[usize; D],
+) -> (T, Vector<T, D>, Vector<T, D>) {
+    let mut w = T::one();
+    for a in 0..D {
+        w *= s.w[a][j[a]];
+    }
+    let g = Vector::<T, D>::from_fn(|a, _| {
+        let mut ga = g_axis[a][j[a]];
+        for b in 0..D {
+            if b != a {
+                ga *= s.w[b][j[b]];
+            }
+        }
+        ga
+    });
+    let r = Vector::<T, D>::from_fn(|a, _| r_axis[a][j[a]]);
+    (w, g, r)
 }
 
 impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K, L> {
@@ -190,12 +234,14 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
         let viscous = particles.needs.velocity_gradient && !gradient_form;
         let need_moment = (affine || mls || viscous) && !gradient_form;
         let separate = scheme.needs(gradient_form).old_velocity;
+        let nodes = K::NODES_PER_AXIS.pow(D as u32);
         let p = particles;
         self.grid.scatter(
             Self::buffer_extent(),
             separate,
             false,
             |_home, range, buf| {
+                let strides = buf.strides();
                 for i in range {
                     let x = p.x[i];
                     let st = stencils::<T, D, K, L>(&x, inv_h);
@@ -221,18 +267,24 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
                     }
                     let mls_stress = d_inv.map(|di| mls_part * di);
                     let m = p.mass[i];
-                    let v = p.v[i];
+                    let mv = p.v[i] * m;
+                    let mc = c * m;
                     for (k, s) in st.iter().enumerate().take(L::GRIDS) {
-                        for q in 0..s.node_count() {
-                            let j = s.local(q);
-                            let (w, g) = s.weight_and_gradient(&j);
-                            let r = s.offset_to_node(&j, h);
-                            let momentum = (v + c * r) * (w * m);
+                        let first = buf.index_of(k, &s.base);
+                        let (r_axis, g_axis) = axis_tables::<T, D, K>(s, h);
+                        for q in 0..nodes {
+                            let j = Stencil::<T, D>::local_of::<K>(q);
+                            let (w, g, r) = node_terms(s, &r_axis, &g_axis, &j);
+                            let momentum = (mv + mc * r) * w;
                             let mut impulse = stress * g;
                             if let Some(ms) = &mls_stress {
-                                impulse += ms * r * w;
+                                impulse += ms * (r * w);
                             }
-                            buf.add(k, &s.node(&j), w * m, &momentum, &impulse);
+                            let mut idx = first;
+                            for a in 0..D {
+                                idx += j[a] * strides[a];
+                            }
+                            buf.add_at(idx, w * m, &momentum, &impulse);
                         }
                     }
                 }
@@ -285,6 +337,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
             needs.affine_moment = true;
             needs.moment_matrix = true;
         }
+        let nodes = K::NODES_PER_AXIS.pow(D as u32);
         let grid = &self.grid;
         let homes = grid.home_of_sorted();
         let (lo, hi) = (params.domain_min, params.domain_max);
@@ -319,23 +372,20 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
                 moment_matrix: Matrix::<T, D>::zeros(),
             };
             for (k, s) in st.iter().enumerate().take(L::GRIDS) {
-                for q in 0..s.node_count() {
-                    let j = s.local(q);
-                    let node = s.node(&j);
-                    let vi = view.velocity(k, &node);
-                    let (w, grad) = s.weight_and_gradient(&j);
-                    g.velocity += vi * w;
+                let ix = view.indexer(k, &s.base, K::NODES_PER_AXIS);
+                let (r_axis, g_axis) = axis_tables::<T, D, K>(s, h);
+                for q in 0..nodes {
+                    let j = Stencil::<T, D>::local_of::<K>(q);
+                    let idx = ix.index(&j);
+                    let vi = view.velocity_at(idx);
+                    let (w, grad, r) = node_terms(s, &r_axis, &g_axis, &j);
+                    let wv = vi * w;
+                    g.velocity += wv;
                     if needs.old_velocity {
-                        g.velocity_change += (vi - view.velocity_old(k, &node)) * w;
+                        g.velocity_change += (vi - view.velocity_old_at(idx)) * w;
                     }
-                    if needs.affine_moment || needs.moment_matrix {
-                        let r = s.offset_to_node(&j, h);
-                        if needs.affine_moment {
-                            g.affine_moment += vi * w * r.transpose();
-                        }
-                        if needs.moment_matrix {
-                            g.moment_matrix += r * w * r.transpose();
-                        }
+                    if needs.affine_moment {
+                        g.affine_moment += wv * r.transpose();
                     }
                     if needs.velocity_gradient {
                         g.velocity_gradient += vi * grad.transpose();
@@ -346,7 +396,9 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
             g.velocity_change *= gw;
             g.affine_moment *= gw;
             g.velocity_gradient *= gw;
-            g.moment_matrix *= gw;
+            if needs.moment_matrix {
+                g.moment_matrix = moment_matrix::<T, D, L>(&st, h);
+            }
             let up = scheme.update(vp, &g, gradient_form);
             *vp = up.velocity;
             let mut xn = *xp + up.velocity * dt;

@@ -14,6 +14,7 @@ mod flip;
 mod mls;
 pub mod particles;
 mod pic;
+mod reference_step;
 pub mod scheme;
 pub mod timestep;
 
