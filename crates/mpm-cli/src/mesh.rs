@@ -922,8 +922,8 @@ pub fn bunny_blob() -> TriMesh {
         // Ellipsoid radius along d: semi-axes 0.8 (x), 0.7 (y), 1.0 (z).
         let body = 1.0 / ((d[0] / 0.8).powi(2) + (d[1] / 0.7).powi(2) + d[2].powi(2)).sqrt();
         body + 0.35 * bump(d, [0.0, 0.8, 1.0], 0.45)
-            + 0.9 * bump(d, [0.3, 1.0, 0.15], 0.16)
-            + 0.9 * bump(d, [-0.3, 1.0, 0.15], 0.16)
+            + 0.8 * bump(d, [0.3, 1.0, 0.15], 0.22)
+            + 0.8 * bump(d, [-0.3, 1.0, 0.15], 0.22)
             + 0.15 * bump(d, [0.0, 0.2, -1.0], 0.3)
     })
 }
