@@ -1,7 +1,9 @@
 //! The `mpm` command-line tool as a library: scene files ([`scene`]), particle
-//! sampling ([`sampling`]), output writers ([`output`]) `mpm run` ([`run`]) and `mpm bench` ([`bench`]).
+//! sampling ([`sampling`]), mesh bodies ([`mesh`]), output writers ([`output`]),
+//! `mpm run` ([`run`]) and `mpm bench` ([`bench`]).
 
 pub mod bench;
+pub mod mesh;
 pub mod output;
 pub mod run;
 pub mod sampling;

@@ -3,7 +3,7 @@
 use clap::{Parser, Subcommand};
 use mpm_cli::bench;
 use mpm_cli::run::{run_scene, RunOptions};
-use mpm_cli::scene::{load_scene, parse_scene, Scene, SceneError};
+use mpm_cli::scene::{load_scene, parse_scene, OutputFormat, Scene, SceneError};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -19,7 +19,8 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     /// Simulate a scene (without SCENE: the built-in demo, an elastic cube dropped on
-    /// the floor) and write frames/, stats.csv and summary.json.
+    /// the floor) and write frames/ (PLY and/or VTU with frames.pvd), stats.csv and
+    /// summary.json.
     Run {
         /// Scene file (TOML).
         scene: Option<PathBuf>,
@@ -229,15 +230,24 @@ fn main() -> ExitCode {
                 origin,
                 threads: pool.current_num_threads(),
             };
+            let mut files: Vec<&str> = Vec::new();
+            if scene.output.format.contains(&OutputFormat::Ply) {
+                files.push("frames/frame_*.ply");
+            }
+            if scene.output.format.contains(&OutputFormat::Vtu) {
+                files.push("frames/frame_*.vtu, frames.pvd");
+            }
+            files.extend(["stats.csv", "summary.json"]);
             match pool.install(|| run_scene(&scene, &opts)) {
                 Ok(r) => {
                     println!(
-                        "wrote {} frames ({} particles, {} steps, {:.1} s) to {}/: frames/frame_*.ply, stats.csv, summary.json",
+                        "wrote {} frames ({} particles, {} steps, {:.1} s) to {}/: {}",
                         r.frames,
                         r.particles,
                         r.steps,
                         r.wall_seconds,
-                        out.display()
+                        out.display(),
+                        files.join(", ")
                     );
                     ExitCode::SUCCESS
                 }

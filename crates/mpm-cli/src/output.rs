@@ -1,4 +1,5 @@
-//! Output files: atomic writes, binary PLY frames and stats.csv rows.
+//! Output files: atomic writes, binary PLY frames, VTU frames with their `.pvd`
+//! collection, and stats.csv rows.
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -173,6 +174,121 @@ pub fn read_ply_positions(bytes: &[u8]) -> Result<Vec<[f64; 3]>, String> {
     Ok(out)
 }
 
+/// Per-particle fields of one VTU frame, in particle creation order.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ParticleFields<T> {
+    /// Positions (2-D: z = 0).
+    pub positions: Vec<[T; 3]>,
+    /// Velocities (2-D: z = 0).
+    pub velocities: Vec<[T; 3]>,
+    /// Index into the scene's materials.
+    pub material: Vec<u16>,
+    /// Index into the scene's bodies.
+    pub body: Vec<u16>,
+    /// Volume ratio: `det F` (`det F_E` for the plastic models), or the fluid's `J`.
+    pub jacobian: Vec<T>,
+    /// Frobenius norm of the Kirchhoff stress `‖τ‖_F` (Pa).
+    pub stress_norm: Vec<T>,
+    /// The plastic models' hardening scalar, when the scene has one (0 for particles of
+    /// the other models).
+    pub plastic: Option<Vec<T>>,
+}
+
+/// Names of the VTU point-data arrays, in file order (`plastic` only when present).
+pub const VTU_FIELDS: [&str; 6] = [
+    "velocity",
+    "material",
+    "body",
+    "J",
+    "stress_norm",
+    "plastic",
+];
+
+fn io_buffer<T: Real>(values: impl Iterator<Item = T>) -> vtkio::IOBuffer {
+    // The file keeps the run's precision.
+    if T::NAME == "f32" {
+        vtkio::IOBuffer::F32(values.map(|x| x.to_f64() as f32).collect())
+    } else {
+        vtkio::IOBuffer::F64(values.map(|x| x.to_f64()).collect())
+    }
+}
+
+/// A VTK XML UnstructuredGrid (`.vtu`, base64 binary arrays, little-endian) with one
+/// `VTK_VERTEX` cell per particle and the fields as point data, written by vtkio.
+///
+/// Panics if the field arrays differ in length (a caller bug, not user input).
+pub fn vtu_bytes<T: Real>(f: &ParticleFields<T>) -> Result<Vec<u8>, vtkio::Error> {
+    use vtkio::model::{
+        Attribute, Attributes, ByteOrder, CellType, Cells, DataSet, UnstructuredGridPiece, Version,
+        VertexNumbers, Vtk,
+    };
+    let n = f.positions.len();
+    for len in [
+        f.velocities.len(),
+        f.material.len(),
+        f.body.len(),
+        f.jacobian.len(),
+        f.stress_norm.len(),
+    ] {
+        assert_eq!(len, n, "one value per particle");
+    }
+    let flat = |v: &[[T; 3]]| io_buffer(v.iter().flat_map(|p| p.iter().copied()));
+    let mut point = vec![
+        Attribute::vectors(VTU_FIELDS[0]).with_data(flat(&f.velocities)),
+        Attribute::scalars(VTU_FIELDS[1], 1).with_data(f.material.clone()),
+        Attribute::scalars(VTU_FIELDS[2], 1).with_data(f.body.clone()),
+        Attribute::scalars(VTU_FIELDS[3], 1).with_data(io_buffer(f.jacobian.iter().copied())),
+        Attribute::scalars(VTU_FIELDS[4], 1).with_data(io_buffer(f.stress_norm.iter().copied())),
+    ];
+    if let Some(q) = &f.plastic {
+        assert_eq!(q.len(), n, "one value per particle");
+        point.push(Attribute::scalars(VTU_FIELDS[5], 1).with_data(io_buffer(q.iter().copied())));
+    }
+    let vtk = Vtk {
+        version: Version::new_xml(1, 0),
+        title: String::new(),
+        byte_order: ByteOrder::LittleEndian,
+        file_path: None,
+        data: DataSet::inline(UnstructuredGridPiece {
+            points: flat(&f.positions),
+            cells: Cells {
+                cell_verts: VertexNumbers::XML {
+                    connectivity: (0..n as u64).collect(),
+                    offsets: (1..=n as u64).collect(),
+                },
+                types: vec![CellType::Vertex; n],
+            },
+            data: Attributes {
+                point,
+                cell: Vec::new(),
+            },
+        }),
+    };
+    let mut out = Vec::new();
+    vtk.write_xml(&mut out)?;
+    Ok(out)
+}
+
+/// A ParaView collection (`.pvd`) listing `(time, file)` pairs, files relative to the
+/// collection's directory. Written by hand: vtkio has no collection type, and this is
+/// a few lines of plain XML.
+pub fn pvd_text(frames: &[(f64, String)]) -> String {
+    let mut s = String::from(
+        "<?xml version=\"1.0\"?>\n<VTKFile type=\"Collection\" version=\"0.1\" byte_order=\"LittleEndian\">\n  <Collection>\n",
+    );
+    for (time, file) in frames {
+        let file = file
+            .replace('&', "&amp;")
+            .replace('"', "&quot;")
+            .replace('<', "&lt;");
+        s.push_str(&format!(
+            "    <DataSet timestep=\"{time:e}\" group=\"\" part=\"0\" file=\"{file}\"/>\n"
+        ));
+    }
+    s.push_str("  </Collection>\n</VTKFile>\n");
+    s
+}
+
 /// One stats.csv row's standard columns (SI units, totals over all particles).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct StatsRow {
@@ -345,6 +461,150 @@ mod tests {
         let (p, v, m) = cloud::<f64>(5);
         let bytes = ply_bytes(&p, &v, &m);
         assert!(read_ply_positions(&bytes[..bytes.len() - 1]).is_err());
+    }
+
+    fn fields<T: Real>(n: usize, plastic: bool) -> ParticleFields<T> {
+        let (p, v, m) = cloud::<T>(n);
+        ParticleFields {
+            positions: p,
+            velocities: v,
+            material: m,
+            body: (0..n).map(|i| (i % 2) as u16).collect(),
+            jacobian: (0..n).map(|i| T::lit(1.0 - 0.01 * i as f64)).collect(),
+            stress_norm: (0..n).map(|i| T::lit(1e3 * i as f64)).collect(),
+            plastic: plastic.then(|| (0..n).map(|i| T::lit(0.5 * i as f64)).collect()),
+        }
+    }
+
+    /// Parses VTU bytes with vtkio; returns the piece.
+    pub(crate) fn parse_vtu(bytes: &[u8]) -> vtkio::model::UnstructuredGridPiece {
+        use vtkio::model::DataSet;
+        let vtk = vtkio::Vtk::parse_xml(bytes).unwrap();
+        let DataSet::UnstructuredGrid { pieces, .. } = vtk.data else {
+            panic!("not an UnstructuredGrid");
+        };
+        assert_eq!(pieces.len(), 1);
+        pieces[0].load_piece_data(None).unwrap()
+    }
+
+    /// The point-data arrays of a piece by name: (components, values as f64, buffer).
+    pub(crate) fn vtu_arrays(
+        piece: &vtkio::model::UnstructuredGridPiece,
+    ) -> Vec<(String, usize, Vec<f64>, vtkio::IOBuffer)> {
+        use vtkio::model::Attribute;
+        piece
+            .data
+            .point
+            .iter()
+            .map(|a| match a {
+                Attribute::DataArray(d) => (
+                    d.name.clone(),
+                    d.num_comp(),
+                    d.data.cast_into::<f64>().unwrap(),
+                    d.data.clone(),
+                ),
+                Attribute::Field { name, .. } => panic!("field attribute {name}"),
+            })
+            .collect()
+    }
+
+    fn vtu_round_trip<T: Real>(plastic: bool) {
+        use vtkio::model::{CellType, VertexNumbers};
+        let n = 23;
+        let f = fields::<T>(n, plastic);
+        let bytes = vtu_bytes(&f).unwrap();
+        let text = String::from_utf8_lossy(&bytes);
+        assert!(
+            text.starts_with("<VTKFile type=\"UnstructuredGrid\""),
+            "{text:.200}"
+        );
+        assert!(text.contains("byte_order=\"LittleEndian\""));
+        let piece = parse_vtu(&bytes);
+        assert_eq!(piece.num_points(), n);
+        let single = T::NAME == "f32";
+        assert_eq!(
+            matches!(piece.points, vtkio::IOBuffer::F32(_)),
+            single,
+            "points keep the run's precision"
+        );
+        let pts = piece.points.cast_into::<f64>().unwrap();
+        for i in 0..n {
+            for a in 0..3 {
+                assert_eq!(pts[3 * i + a], f.positions[i][a].to_f64());
+            }
+        }
+        assert_eq!(piece.cells.types, vec![CellType::Vertex; n]);
+        match &piece.cells.cell_verts {
+            VertexNumbers::XML {
+                connectivity,
+                offsets,
+            } => {
+                assert_eq!(connectivity, &(0..n as u64).collect::<Vec<_>>());
+                assert_eq!(offsets, &(1..=n as u64).collect::<Vec<_>>());
+            }
+            other => panic!("{other:?}"),
+        }
+        let arrays = vtu_arrays(&piece);
+        let names: Vec<&str> = arrays.iter().map(|a| a.0.as_str()).collect();
+        let expect = if plastic {
+            &VTU_FIELDS[..]
+        } else {
+            &VTU_FIELDS[..5]
+        };
+        assert_eq!(names, expect);
+        for (name, comps, values, buf) in &arrays {
+            let want: Vec<f64> = match name.as_str() {
+                "velocity" => f
+                    .velocities
+                    .iter()
+                    .flat_map(|v| v.map(|x| x.to_f64()))
+                    .collect(),
+                "material" => f.material.iter().map(|&m| m as f64).collect(),
+                "body" => f.body.iter().map(|&m| m as f64).collect(),
+                "J" => f.jacobian.iter().map(|x| x.to_f64()).collect(),
+                "stress_norm" => f.stress_norm.iter().map(|x| x.to_f64()).collect(),
+                "plastic" => f.plastic.iter().flatten().map(|x| x.to_f64()).collect(),
+                other => panic!("unexpected array {other}"),
+            };
+            assert_eq!(*comps, if name == "velocity" { 3 } else { 1 }, "{name}");
+            assert_eq!(values, &want, "{name}");
+            if name == "material" || name == "body" {
+                assert!(matches!(buf, vtkio::IOBuffer::U16(_)), "{name}");
+            }
+        }
+    }
+
+    #[test]
+    fn vtu_round_trip_f32_and_f64() {
+        vtu_round_trip::<f32>(false);
+        vtu_round_trip::<f64>(true);
+        vtu_round_trip::<f32>(true);
+        // No particles is still a valid file.
+        let piece = parse_vtu(&vtu_bytes(&fields::<f64>(0, false)).unwrap());
+        assert_eq!(piece.num_points(), 0);
+    }
+
+    #[test]
+    fn pvd_lists_frames_with_times() {
+        let frames = vec![
+            (0.0, "frames/frame_00000.vtu".to_string()),
+            (0.02, "frames/frame_00001.vtu".to_string()),
+            (1.0 / 3.0, "frames/a&b.vtu".to_string()),
+        ];
+        let text = pvd_text(&frames);
+        assert!(text.contains("<VTKFile type=\"Collection\""));
+        let entries: Vec<&str> = text.lines().filter(|l| l.contains("<DataSet")).collect();
+        assert_eq!(entries.len(), 3);
+        assert!(entries[1].contains("timestep=\"2e-2\"") && entries[1].contains("frame_00001.vtu"));
+        assert!(entries[2].contains("a&amp;b.vtu"));
+        let t: f64 = entries[2]
+            .split("timestep=\"")
+            .nth(1)
+            .and_then(|r| r.split('"').next())
+            .unwrap()
+            .parse()
+            .unwrap();
+        assert_eq!(t, 1.0 / 3.0);
     }
 
     #[test]

@@ -2,11 +2,13 @@
 //! kernel × layout, dispatched once here) and writes frames, stats.csv and
 //! summary.json.
 
-use crate::output::{ply_bytes, write_atomic, StatsRow, StatsWriter};
+use crate::output::{
+    ply_bytes, pvd_text, vtu_bytes, write_atomic, ParticleFields, StatsRow, StatsWriter,
+};
 use crate::sampling::{particle_volume, sample_body};
 use crate::scene::{
-    Boundary, ColliderSpec, GridKind, Kernel as KernelKind, MaterialSpec, ModelKind, Precision,
-    Reduction, ReferenceKind, Scene, TimeStep, TransferKind,
+    Boundary, ColliderSpec, GridKind, Kernel as KernelKind, MaterialSpec, ModelKind, OutputFormat,
+    Precision, Reduction, ReferenceKind, Scene, TimeStep, TransferKind,
 };
 use mpm_aul::{Adaptive, Eulerian, Reference, Simulation, TimeStepPolicy, TotalLagrangian};
 use mpm_constitutive::{
@@ -15,7 +17,7 @@ use mpm_constitutive::{
 };
 use mpm_grid::{domain_walls, Collider, ColliderShape, ContactKind, Dual, GridLayout, Single};
 use mpm_kernels::{Compact, CubicBSpline, Kernel, Linear, QuadraticBSpline};
-use mpm_math::{Real, Vector};
+use mpm_math::{determinant, Real, Vector};
 use mpm_transfer::{Apic, Flip, Mls, Particles, Pic, Transfer, TransferScheme};
 use serde_json::json;
 use std::path::{Path, PathBuf};
@@ -456,6 +458,54 @@ fn frame_ply<T: Real, const D: usize>(p: &Particles<T, D>) -> Vec<u8> {
     ply_bytes(&pos, &vel, &mat)
 }
 
+/// The VTU fields of every particle, in creation order: `J` from the state the
+/// particle's material keeps (`F` or the fluid's `J`), `‖τ‖_F` from its model.
+pub fn particle_fields<T: Real, const D: usize>(
+    p: &Particles<T, D>,
+    materials: &[Material<T>],
+    body_of: &[u16],
+) -> ParticleFields<T> {
+    let idx = p.index_by_id();
+    let pad = |v: &Vector<T, D>| {
+        let mut o = [T::zero(); 3];
+        for a in 0..D {
+            o[a] = v[a];
+        }
+        o
+    };
+    let mut f = ParticleFields {
+        plastic: p.needs.plastic.then(Vec::new),
+        ..Default::default()
+    };
+    for &i in &idx {
+        let i = i as usize;
+        let state = p.state(i);
+        let mat = p.material[i];
+        f.positions.push(pad(&p.x[i]));
+        f.velocities.push(pad(&p.v[i]));
+        f.material.push(mat);
+        f.body
+            .push(body_of.get(p.id[i] as usize).copied().unwrap_or(0));
+        let (j, tau) = match materials.get(mat as usize) {
+            Some(m) => {
+                let j = if m.needs().jacobian {
+                    state.jacobian.unwrap_or_else(T::one)
+                } else {
+                    state.deformation.map_or_else(T::one, determinant)
+                };
+                (j, m.kirchhoff_stress(&state).norm())
+            }
+            None => (T::one(), T::zero()),
+        };
+        f.jacobian.push(j);
+        f.stress_norm.push(tau);
+        if let Some(q) = &mut f.plastic {
+            q.push(state.plastic.unwrap_or_else(T::zero));
+        }
+    }
+    f
+}
+
 fn run_typed<T: Real, const D: usize, K: Kernel, L: GridLayout>(
     scene: &Scene,
     opts: &RunOptions,
@@ -476,14 +526,34 @@ fn run_typed<T: Real, const D: usize, K: Kernel, L: GridLayout>(
         .map_or(total_frames, |n| n.min(total_frames));
     let bar = progress_bar(opts.progress, last_frame as u64);
     let mut output_seconds = 0.0;
+    let ply = scene.output.format.contains(&OutputFormat::Ply);
+    let vtu = scene.output.format.contains(&OutputFormat::Vtu);
+    let pvd_path = opts.out.join("frames.pvd");
+    // (time, file) of every VTU frame so far; the collection is rewritten each frame.
+    let mut pvd: Vec<(f64, String)> = Vec::new();
 
     let mut write_frame = |frame: usize,
                            sim: &Simulation<T, D, K, L>,
                            stats: &mut StatsWriter|
      -> Result<(), RunError> {
         let t0 = Instant::now();
-        let path = frames_dir.join(format!("frame_{frame:05}.ply"));
-        write_atomic(&path, &frame_ply(&sim.particles)).map_err(io_err(&path))?;
+        if ply {
+            let path = frames_dir.join(format!("frame_{frame:05}.ply"));
+            write_atomic(&path, &frame_ply(&sim.particles)).map_err(io_err(&path))?;
+        }
+        if vtu {
+            let name = format!("frame_{frame:05}.vtu");
+            let path = frames_dir.join(&name);
+            let fields = particle_fields(&sim.particles, &sim.materials, &body_of);
+            let bytes = vtu_bytes(&fields).map_err(|e| RunError::Io {
+                path: path.display().to_string(),
+                source: std::io::Error::other(e.to_string()),
+            })?;
+            write_atomic(&path, &bytes).map_err(io_err(&path))?;
+            // Listed only once the frame's file is complete.
+            pvd.push((sim.time, format!("frames/{name}")));
+            write_atomic(&pvd_path, pvd_text(&pvd).as_bytes()).map_err(io_err(&pvd_path))?;
+        }
         let t = sim.totals();
         let row = StatsRow {
             frame,

@@ -7,11 +7,13 @@
 
 use std::collections::HashSet;
 use std::fmt;
-use std::path::Path;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use serde::{Deserialize, Serialize};
 use toml::Value;
 
+use crate::mesh::{MeshCache, MeshError, SolidMesh};
 use crate::sampling;
 
 /// A scene file that cannot be used, with the file, the key and the fix.
@@ -135,6 +137,9 @@ fn default_adaptive() -> f64 {
 }
 fn default_scale() -> f64 {
     1.0
+}
+fn default_rotate() -> Vec<f64> {
+    vec![0.0; 3]
 }
 
 #[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]
@@ -414,12 +419,24 @@ pub enum Shape {
         radius: f64,
         length: f64,
     },
-    /// Not supported yet. `translate` is filled with zeros when absent.
+    /// 3-D only: the solid bounded by a closed triangle mesh (`.obj` or `.stl`), placed
+    /// by `x ↦ R(scale·x) + translate` with `R` from the Euler angles `rotate` (degrees,
+    /// about the fixed x, then y, then z axes). A relative `path` is taken from the
+    /// scene file's directory. `translate` and `rotate` default to zeros.
     Mesh {
         path: String,
         #[serde(default = "default_scale")]
         scale: f64,
         translate: Vec<f64>,
+        #[serde(default = "default_rotate")]
+        rotate: Vec<f64>,
+        /// Directory a relative `path` is taken from (`None`: the working directory);
+        /// set by [`load_scene`], not a key.
+        #[serde(skip)]
+        base_dir: Option<PathBuf>,
+        /// The loaded mesh; not a key.
+        #[serde(skip)]
+        cache: MeshCache,
     },
 }
 
@@ -431,6 +448,41 @@ impl Shape {
             Shape::Cylinder { .. } => "cylinder",
             Shape::Mesh { .. } => "mesh",
         }
+    }
+
+    /// A mesh shape's file, resolved against its base directory.
+    pub fn mesh_file(&self) -> Option<PathBuf> {
+        match self {
+            Shape::Mesh { path, base_dir, .. } => Some(match base_dir {
+                Some(dir) => dir.join(path),
+                None => PathBuf::from(path),
+            }),
+            _ => None,
+        }
+    }
+
+    /// A mesh shape's solid (loaded, checked closed and transformed on first use, then
+    /// cached); `None` for the other shapes. A transform of the wrong length (which
+    /// validation reports) gives [`MeshError::Empty`].
+    pub fn solid_mesh(&self) -> Option<Result<Arc<SolidMesh>, MeshError>> {
+        let Shape::Mesh {
+            scale,
+            translate,
+            rotate,
+            cache,
+            ..
+        } = self
+        else {
+            return None;
+        };
+        let file = self.mesh_file()?;
+        let (Ok(t), Ok(r)) = (
+            <[f64; 3]>::try_from(translate.as_slice()),
+            <[f64; 3]>::try_from(rotate.as_slice()),
+        ) else {
+            return Some(Err(MeshError::Empty));
+        };
+        Some(cache.get(&file, *scale, r, t))
     }
 }
 
@@ -566,20 +618,33 @@ const SECTIONS: [&str; 6] = [
     "collider",
 ];
 
-/// Reads, overrides (`KEY=VALUE`, see [`parse_scene`]), resolves and validates a scene file.
+/// Reads, overrides (`KEY=VALUE`, see [`parse_scene`]), resolves and validates a scene
+/// file. Mesh paths are taken relative to the file's directory.
 pub fn load_scene(path: &Path, overrides: &[String]) -> Result<Scene, SceneError> {
     let file = path.display().to_string();
     let text = std::fs::read_to_string(path).map_err(|source| SceneError::Read {
         file: file.clone(),
         source,
     })?;
-    parse_scene(&text, &file, overrides)
+    let dir = path.parent().unwrap_or(Path::new(""));
+    parse_scene_in(&text, &file, overrides, Some(dir))
 }
 
 /// Parses scene text; `origin` names the file in errors. Each override is
 /// `KEY=VALUE` with a dotted KEY (`simulation.kernel`, `material.0.density`) and a
 /// TOML VALUE (`0.02`, `[0,1,0]`, `true`), or a bare word taken as a string.
+/// Relative mesh paths are taken from the working directory.
 pub fn parse_scene(text: &str, origin: &str, overrides: &[String]) -> Result<Scene, SceneError> {
+    parse_scene_in(text, origin, overrides, None)
+}
+
+/// [`parse_scene`] with relative mesh paths taken from `base_dir`.
+pub fn parse_scene_in(
+    text: &str,
+    origin: &str,
+    overrides: &[String],
+    base_dir: Option<&Path>,
+) -> Result<Scene, SceneError> {
     let mut doc: toml::Table = text.parse().map_err(|e: toml::de::Error| {
         let (line, column) = e
             .span()
@@ -596,7 +661,9 @@ pub fn parse_scene(text: &str, origin: &str, overrides: &[String]) -> Result<Sce
         apply_override(&mut doc, o, origin)?;
     }
     fill_resolved_defaults(&mut doc);
-    let scene: Scene = serde_path_to_error::deserialize(doc).map_err(|e| serde_error(e, origin))?;
+    let mut scene: Scene =
+        serde_path_to_error::deserialize(doc).map_err(|e| serde_error(e, origin))?;
+    scene.set_base_dir(base_dir);
     scene.validate(origin)?;
     Ok(scene)
 }
@@ -964,6 +1031,16 @@ impl Check<'_> {
 }
 
 impl Scene {
+    /// Sets the directory relative mesh paths are taken from (`None`: the working
+    /// directory).
+    pub fn set_base_dir(&mut self, dir: Option<&Path>) {
+        for b in &mut self.body {
+            if let Shape::Mesh { base_dir, .. } = &mut b.shape {
+                *base_dir = dir.map(Path::to_path_buf);
+            }
+        }
+    }
+
     /// Checks every key's range; `origin` names the file in errors. [`parse_scene`]
     /// calls this; call it again after editing a scene in code.
     pub fn validate(&self, origin: &str) -> Result<(), SceneError> {
@@ -1248,12 +1325,53 @@ impl Scene {
                     c.positive(&k("shape.radius"), *radius)?;
                     c.positive(&k("shape.length"), *length)?;
                 }
-                Shape::Mesh { .. } => {
-                    return Err(c.not_supported(&k("shape.type"), b.shape.type_name()));
+                Shape::Mesh {
+                    path,
+                    scale,
+                    translate,
+                    rotate,
+                    ..
+                } => {
+                    if dim != 3 {
+                        return Err(c.err(
+                            &shape_key,
+                            "a mesh body is 3-D only",
+                            "Use simulation.dim = 3, or in 2-D a box or a sphere (a disc)",
+                        ));
+                    }
+                    if path.trim().is_empty() {
+                        return Err(c.err(
+                            &k("shape.path"),
+                            "the path is empty",
+                            "Give the path of a closed .obj or .stl mesh (relative to the scene file)",
+                        ));
+                    }
+                    c.positive(&k("shape.scale"), *scale)?;
+                    c.vector(&k("shape.translate"), translate, 3, "x, y, z in metres")?;
+                    c.vector(
+                        &k("shape.rotate"),
+                        rotate,
+                        3,
+                        "Euler angles in degrees about x, then y, then z",
+                    )?;
+                    if let Some(Err(e)) = b.shape.solid_mesh() {
+                        let file = b.shape.mesh_file().unwrap_or_default();
+                        return Err(c.err(
+                            &k("shape.path"),
+                            format!("{}: {e}", file.display()),
+                            e.fix(),
+                        ));
+                    }
                 }
             }
-            let (lo, hi) =
-                sampling::bounding_box(&b.shape, dim).expect("vector lengths were checked above");
+            let Some((lo, hi)) = sampling::bounding_box(&b.shape, dim) else {
+                // Unreachable after the checks above; reported rather than panicking.
+                return Err(c.err(
+                    &shape_key,
+                    format!("the {} has no bounding box", b.shape.type_name()),
+                    "Check the shape's keys (see docs/scene-format.md)",
+                ));
+            };
             if (0..dim).any(|a| lo[a] < s.domain_min[a] || hi[a] > s.domain_max[a]) {
                 return Err(c.err(
                     &shape_key,
@@ -1280,8 +1398,12 @@ impl Scene {
 
         // Output.
         for (i, f) in self.output.format.iter().enumerate() {
-            if *f == OutputFormat::Vtu {
-                return Err(c.not_supported(&format!("output.format.{i}"), "vtu"));
+            if self.output.format[..i].contains(f) {
+                return Err(c.err(
+                    &format!("output.format.{i}"),
+                    "the format is listed twice",
+                    "List each of \"ply\" and \"vtu\" at most once",
+                ));
             }
         }
 
@@ -1812,15 +1934,163 @@ normal = [0.0, 1.0]
             &["simulation.integrator=semi-implicit"],
             &["simulation.integrator", ns],
         );
+    }
+
+    #[test]
+    fn output_formats() {
+        let s = parse(FULL_3D, &["output.format=[\"ply\", \"vtu\"]"]).unwrap();
+        assert_eq!(s.output.format, vec![OutputFormat::Ply, OutputFormat::Vtu]);
+        let s = parse(FULL_3D, &["output.format=[\"vtu\"]"]).unwrap();
+        assert_eq!(s.output.format, vec![OutputFormat::Vtu]);
         bad(
             FULL_3D,
-            &["body.0.shape={ type = \"mesh\", path = \"bunny.obj\" }"],
-            &["body.0.shape.type", "mesh", ns],
+            &["output.format=[\"vtu\", \"vtu\"]"],
+            &["output.format.1", "twice"],
         );
         bad(
             FULL_3D,
-            &["output.format=[\"ply\", \"vtu\"]"],
-            &["output.format.1", "vtu", ns],
+            &["output.format=[\"vtk\"]"],
+            &["output.format", "ply", "vtu"],
+        );
+    }
+
+    /// A scene file with one mesh body in a temporary directory beside `meshes/` holding
+    /// a good torus, an open one (a triangle removed), an inconsistently oriented one (a
+    /// triangle flipped) and the good one as binary STL.
+    fn mesh_scene_dir(tag: &str) -> std::path::PathBuf {
+        use crate::mesh::torus;
+        let dir = std::env::temp_dir().join(format!("mpm-cli-mesh-{tag}-{}", std::process::id()));
+        let meshes = dir.join("meshes");
+        std::fs::create_dir_all(&meshes).unwrap();
+        let good = torus(1.0, 0.4, 16, 8);
+        std::fs::write(meshes.join("torus.obj"), good.to_obj("test torus")).unwrap();
+        std::fs::write(meshes.join("torus.stl"), good.to_stl().unwrap()).unwrap();
+        let mut open = good.clone();
+        open.triangles.remove(5);
+        std::fs::write(meshes.join("open.obj"), open.to_obj("open")).unwrap();
+        let mut flipped = good.clone();
+        flipped.triangles[7].swap(0, 1);
+        std::fs::write(meshes.join("flipped.obj"), flipped.to_obj("flipped")).unwrap();
+        let text = FULL_3D.replace(
+            "shape = { type = \"sphere\", center = [0.3, 0.3, 0.3], radius = 0.1 }",
+            "shape = { type = \"mesh\", path = \"meshes/torus.obj\", scale = 0.1, translate = [0.3, 0.5, 0.3], rotate = [30, 0, 0] }",
+        );
+        std::fs::write(dir.join("scene.toml"), text).unwrap();
+        dir
+    }
+
+    #[test]
+    fn mesh_bodies_load_relative_to_the_scene_file() {
+        let dir = mesh_scene_dir("ok");
+        let scene_path = dir.join("scene.toml");
+        let s = load_scene(&scene_path, &[]).unwrap();
+        let shape = &s.body[0].shape;
+        assert_eq!(shape.mesh_file(), Some(dir.join("meshes/torus.obj")));
+        let n = sampling::sample_body(shape, 3, s.simulation.h, 8).len();
+        // Volume 2π²Rr² (less a little for the polygon) over h³/8.
+        let expect =
+            2.0 * std::f64::consts::PI.powi(2) * 0.1 * 0.04f64.powi(2) / 0.02f64.powi(3) * 8.0;
+        assert!((n as f64 / expect - 1.0).abs() < 0.15, "{n} vs {expect}");
+        // The resolved scene keeps the path as written and the filled-in defaults.
+        let j = serde_json::to_value(&s).unwrap();
+        assert_eq!(j["body"][0]["shape"]["path"], "meshes/torus.obj");
+        assert_eq!(
+            j["body"][0]["shape"]["rotate"],
+            serde_json::json!([30.0, 0.0, 0.0])
+        );
+        let t = toml::to_string(&s).unwrap();
+        assert_eq!(parse_scene_in(&t, FILE, &[], Some(&dir)).unwrap(), s);
+        // STL, and the default translate/rotate.
+        let s = load_scene(
+            &scene_path,
+            &["body.0.shape={ type = \"mesh\", path = \"meshes/torus.stl\", scale = 0.1 }".into()],
+        );
+        // Centred on the origin: outside the domain, and the error says where it is.
+        let msg = s.unwrap_err().to_string();
+        assert!(
+            msg.contains("body.0.shape") && msg.contains("outside the domain"),
+            "{msg}"
+        );
+        let s = load_scene(
+            &scene_path,
+            &[
+                "body.0.shape={ type = \"mesh\", path = \"meshes/torus.stl\", scale = 0.1 }".into(),
+                "body.0.shape.translate=[0.5, 0.5, 0.5]".into(),
+            ],
+        )
+        .unwrap();
+        match &s.body[0].shape {
+            Shape::Mesh { rotate, .. } => assert_eq!(rotate, &vec![0.0; 3]),
+            other => panic!("{other:?}"),
+        }
+        assert!(sampling::has_samples(&s.body[0].shape, 3, 0.02, 8));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn mesh_body_errors_name_file_key_and_problem() {
+        let dir = mesh_scene_dir("bad");
+        let scene_path = dir.join("scene.toml");
+        let file = scene_path.display().to_string();
+        let err = |sets: &[&str], needles: &[&str]| {
+            let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+            let msg = load_scene(&scene_path, &sets).unwrap_err().to_string();
+            assert!(msg.starts_with(&file), "no file name in: {msg}");
+            for n in needles {
+                assert!(msg.contains(n), "`{n}` missing from: {msg}");
+            }
+        };
+        err(
+            &["body.0.shape.path=meshes/nope.obj"],
+            &[
+                "body.0.shape.path",
+                "nope.obj",
+                "cannot read the mesh file",
+                "relative path",
+            ],
+        );
+        err(
+            &["body.0.shape.path=meshes/open.obj"],
+            &[
+                "body.0.shape.path",
+                "open.obj",
+                "3 boundary edges",
+                "not closed",
+                "watertight",
+            ],
+        );
+        err(
+            &["body.0.shape.path=meshes/flipped.obj"],
+            &[
+                "body.0.shape.path",
+                "flipped.obj",
+                "3 edges used twice",
+                "not consistently oriented",
+            ],
+        );
+        err(
+            &["body.0.shape.path=meshes/torus.ply"],
+            &["body.0.shape.path", "torus.ply", ".obj or .stl"],
+        );
+        err(&["body.0.shape.path=\"\""], &["body.0.shape.path", "empty"]);
+        err(&["body.0.shape.scale=0"], &["body.0.shape.scale", "> 0"]);
+        err(
+            &["body.0.shape.rotate=[1, 2]"],
+            &["body.0.shape.rotate", "exactly 3", "degrees"],
+        );
+        err(
+            &["body.0.shape.translate=[1, 2]"],
+            &["body.0.shape.translate", "exactly 3"],
+        );
+        err(
+            &["body.0.shape.rotation=[1, 2, 3]"],
+            &["body.0.shape", "rotation", "rotate"],
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
+        bad(
+            MIN_2D,
+            &["body.0.shape={ type = \"mesh\", path = \"torus.obj\" }"],
+            &["body.0.shape", "3-D only"],
         );
     }
 

@@ -391,3 +391,155 @@ fn bench_rejects_bad_options() {
         assert!(err.contains(says), "{args:?}: {err}");
     }
 }
+
+/// A 3-D scene with a mesh body (von Mises torus, plastic state) and a J-fluid box,
+/// written as VTU only: every frame parses back with vtkio with one vertex per
+/// particle and the documented fields, and frames.pvd lists each frame at its time.
+#[test]
+fn run_writes_vtu_frames_and_pvd() {
+    use vtkio::model::{Attribute, CellType, DataSet};
+    let dir = tempfile::tempdir().unwrap();
+    let torus = mpm_cli::mesh::torus(1.0, 0.4, 24, 12);
+    std::fs::create_dir(dir.path().join("meshes")).unwrap();
+    std::fs::write(dir.path().join("meshes/t.obj"), torus.to_obj("t")).unwrap();
+    let scene = r#"
+[simulation]
+dim = 3
+precision = "f32"
+h = 0.04
+domain_min = [0.0, 0.0, 0.0]
+domain_max = [1.0, 1.0, 1.0]
+end_time = 0.04
+frame_dt = 0.02
+
+[[material]]
+name = "metal"
+model = "von-mises"
+density = 1000.0
+youngs_modulus = 1.0e5
+poisson_ratio = 0.3
+yield_stress = 1.0e3
+
+[[material]]
+name = "water"
+model = "j-fluid"
+density = 1000.0
+bulk_modulus = 1.0e4
+
+[[body]]
+material = "metal"
+shape = { type = "mesh", path = "meshes/t.obj", scale = 0.2, translate = [0.5, 0.3, 0.5], rotate = [10, 0, 0] }
+velocity = [0.0, -1.0, 0.0]
+
+[[body]]
+material = "water"
+shape = { type = "box", min = [0.3, 0.6, 0.3], max = [0.7, 0.8, 0.7] }
+
+[output]
+format = ["vtu"]
+"#;
+    let path = write_scene(dir.path(), "mesh.toml", scene);
+    let out_dir = dir.path().join("out");
+    let out = mpm(&[
+        "run",
+        path.to_str().unwrap(),
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out_dir.join("summary.json")).unwrap())
+            .unwrap();
+    let n = summary["particles"].as_u64().unwrap() as usize;
+    assert!(n > 1000, "{n}");
+    // Only the requested format.
+    assert!(!out_dir.join("frames/frame_00000.ply").exists());
+
+    let stats = std::fs::read_to_string(out_dir.join("stats.csv")).unwrap();
+    let times: Vec<f64> = stats
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').nth(1).unwrap().parse().unwrap())
+        .collect();
+    assert_eq!(times.len(), 3);
+    let pvd = std::fs::read_to_string(out_dir.join("frames.pvd")).unwrap();
+    assert!(pvd.contains("<VTKFile type=\"Collection\""), "{pvd}");
+    let entries: Vec<(f64, String)> = pvd
+        .lines()
+        .filter(|l| l.contains("<DataSet"))
+        .map(|l| {
+            let attr = |name: &str| {
+                l.split(&format!("{name}=\""))
+                    .nth(1)
+                    .and_then(|r| r.split('"').next())
+                    .unwrap()
+                    .to_string()
+            };
+            (attr("timestep").parse().unwrap(), attr("file"))
+        })
+        .collect();
+    assert_eq!(entries.len(), 3, "{pvd}");
+
+    for (frame, (time, file)) in entries.iter().enumerate() {
+        assert_eq!(*time, times[frame], "frame {frame} time");
+        assert_eq!(file, &format!("frames/frame_{frame:05}.vtu"));
+        let bytes = std::fs::read(out_dir.join(file)).unwrap();
+        let vtk = vtkio::Vtk::parse_xml(&bytes[..]).unwrap();
+        let DataSet::UnstructuredGrid { pieces, .. } = vtk.data else {
+            panic!("not an UnstructuredGrid");
+        };
+        let piece = pieces[0].load_piece_data(None).unwrap();
+        assert_eq!(piece.num_points(), n);
+        assert_eq!(piece.cells.types, vec![CellType::Vertex; n]);
+        let arrays: Vec<(String, Vec<f64>)> = piece
+            .data
+            .point
+            .iter()
+            .map(|a| match a {
+                Attribute::DataArray(d) => (d.name.clone(), d.data.cast_into::<f64>().unwrap()),
+                Attribute::Field { name, .. } => panic!("{name}"),
+            })
+            .collect();
+        let names: Vec<&str> = arrays.iter().map(|a| a.0.as_str()).collect();
+        assert_eq!(
+            names,
+            [
+                "velocity",
+                "material",
+                "body",
+                "J",
+                "stress_norm",
+                "plastic"
+            ]
+        );
+        let get = |name: &str| &arrays.iter().find(|a| a.0 == name).unwrap().1;
+        assert_eq!(get("velocity").len(), 3 * n);
+        let (material, body, j, stress) =
+            (get("material"), get("body"), get("J"), get("stress_norm"));
+        // The torus comes first (creation order), as material 0 and body 0.
+        assert_eq!((material[0], body[0]), (0.0, 0.0));
+        assert_eq!((material[n - 1], body[n - 1]), (1.0, 1.0));
+        assert!(material.iter().zip(body).all(|(m, b)| m == b));
+        assert!(get("plastic").iter().all(|q| q.is_finite() && *q >= 0.0));
+        if frame == 0 {
+            // Undeformed: J = 1, no stress (the fluid at J = 1 has zero pressure).
+            assert!(j.iter().all(|&x| x == 1.0));
+            assert!(stress.iter().all(|&x| x == 0.0));
+        } else {
+            assert!(j.iter().all(|&x| x > 0.5 && x < 1.5));
+            assert!(j.iter().any(|&x| x != 1.0));
+            assert!(stress.iter().any(|&x| x > 0.0));
+        }
+    }
+    // No temporary files left behind.
+    for e in std::fs::read_dir(&out_dir)
+        .unwrap()
+        .chain(std::fs::read_dir(out_dir.join("frames")).unwrap())
+    {
+        assert!(!e.unwrap().file_name().to_string_lossy().ends_with(".tmp"));
+    }
+}
