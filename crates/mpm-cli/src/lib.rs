@@ -5,6 +5,7 @@
 pub mod bench;
 pub mod mesh;
 pub mod output;
+pub mod render;
 pub mod run;
 pub mod sampling;
 pub mod scene;

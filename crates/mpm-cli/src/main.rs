@@ -81,6 +81,21 @@ enum Command {
         #[arg(long = "set", value_name = "KEY=VALUE")]
         set: Vec<String>,
     },
+    /// Draw the frames of a run directory: DIR/render/frame_NNNNN.png (orthographic
+    /// point splats, fixed camera framing the domain) and DIR/render/preview.gif.
+    Render {
+        /// Output directory of `mpm run`.
+        dir: PathBuf,
+        /// Colour particles by material or by speed.
+        #[arg(long, value_enum, default_value = "material")]
+        color: mpm_cli::render::ColorBy,
+        /// Image width in pixels.
+        #[arg(long, default_value_t = 800)]
+        width: u32,
+        /// Skip the animated GIF preview.
+        #[arg(long)]
+        no_gif: bool,
+    },
     /// Parse and check a scene file; simulate nothing.
     Validate {
         /// Scene file (TOML).
@@ -128,6 +143,37 @@ fn load(scene: Option<&PathBuf>, set: &[String]) -> Result<(Scene, String, Strin
 fn main() -> ExitCode {
     let cli = Cli::parse();
     match cli.command {
+        Command::Render {
+            dir,
+            color,
+            width,
+            no_gif,
+        } => {
+            let opts = mpm_cli::render::RenderOptions {
+                color,
+                width,
+                gif: !no_gif,
+            };
+            match mpm_cli::render::render_dir(&dir, &opts) {
+                Ok(r) => {
+                    println!(
+                        "wrote {} PNG frames ({}x{} px) to {}{}",
+                        r.pngs.len(),
+                        r.size.0,
+                        r.size.1,
+                        dir.join("render").display(),
+                        r.gif
+                            .map(|g| format!(" and {}", g.display()))
+                            .unwrap_or_default()
+                    );
+                    ExitCode::SUCCESS
+                }
+                Err(e) => {
+                    eprintln!("error: {e}");
+                    ExitCode::FAILURE
+                }
+            }
+        }
         Command::Bench {
             scene,
             scenes,

@@ -78,6 +78,15 @@ pub fn ply_bytes<T: Real>(
 /// Reads the positions back from a binary little-endian PLY with `x`, `y`, `z`
 /// properties of type float or double (other scalar properties are skipped).
 pub fn read_ply_positions(bytes: &[u8]) -> Result<Vec<[f64; 3]>, String> {
+    let cols = read_ply_columns(bytes, &["x", "y", "z"])?;
+    Ok((0..cols[0].len())
+        .map(|i| [cols[0][i], cols[1][i], cols[2][i]])
+        .collect())
+}
+
+/// Reads the named scalar vertex properties (any PLY numeric type, widened to
+/// `f64`) of a binary little-endian PLY, one column per name, in the order asked.
+pub fn read_ply_columns(bytes: &[u8], names: &[&str]) -> Result<Vec<Vec<f64>>, String> {
     const END: &[u8] = b"end_header\n";
     let end = bytes
         .windows(END.len())
@@ -130,24 +139,18 @@ pub fn read_ply_positions(bytes: &[u8]) -> Result<Vec<[f64; 3]>, String> {
     }
     let n = count.ok_or("no `element vertex` line")?;
     let stride: usize = props.iter().map(|p| p.0).sum();
-    let mut offsets = [None; 3];
-    let mut off = 0;
-    for (size, ty, name) in &props {
-        let axis = match *name {
-            "x" => Some(0),
-            "y" => Some(1),
-            "z" => Some(2),
-            _ => None,
-        };
-        if let Some(a) = axis {
-            let double = match *ty {
-                "double" | "float64" => true,
-                "float" | "float32" => false,
-                other => return Err(format!("coordinate `{name}` has type `{other}`")),
-            };
-            offsets[a] = Some((off, double));
+    let mut wanted = Vec::with_capacity(names.len());
+    for name in names {
+        let mut off = 0;
+        let mut found = None;
+        for (size, ty, pname) in &props {
+            if pname == name {
+                found = Some((off, *ty));
+                break;
+            }
+            off += size;
         }
-        off += size;
+        wanted.push(found.ok_or_else(|| format!("no vertex property `{name}`"))?);
     }
     let body = &bytes[end..];
     if body.len() < n * stride {
@@ -157,19 +160,28 @@ pub fn read_ply_positions(bytes: &[u8]) -> Result<Vec<[f64; 3]>, String> {
             body.len()
         ));
     }
-    let mut out = Vec::with_capacity(n);
+    let mut out = vec![Vec::with_capacity(n); names.len()];
     for v in 0..n {
         let rec = &body[v * stride..(v + 1) * stride];
-        let mut p = [0.0; 3];
-        for (a, slot) in offsets.iter().enumerate() {
-            let (o, double) = slot.ok_or("missing x, y or z property")?;
-            p[a] = if double {
-                f64::from_le_bytes(rec[o..o + 8].try_into().expect("8 bytes"))
-            } else {
-                f32::from_le_bytes(rec[o..o + 4].try_into().expect("4 bytes")) as f64
+        for (col, &(o, ty)) in out.iter_mut().zip(&wanted) {
+            let b4 = || [rec[o], rec[o + 1], rec[o + 2], rec[o + 3]];
+            let b2 = || [rec[o], rec[o + 1]];
+            let x = match ty {
+                "double" | "float64" => {
+                    let mut a = [0u8; 8];
+                    a.copy_from_slice(&rec[o..o + 8]);
+                    f64::from_le_bytes(a)
+                }
+                "float" | "float32" => f32::from_le_bytes(b4()) as f64,
+                "char" | "int8" => rec[o] as i8 as f64,
+                "uchar" | "uint8" => rec[o] as f64,
+                "short" | "int16" => i16::from_le_bytes(b2()) as f64,
+                "ushort" | "uint16" => u16::from_le_bytes(b2()) as f64,
+                "int" | "int32" => i32::from_le_bytes(b4()) as f64,
+                _ => u32::from_le_bytes(b4()) as f64,
             };
+            col.push(x);
         }
-        out.push(p);
     }
     Ok(out)
 }

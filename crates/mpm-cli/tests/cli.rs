@@ -543,3 +543,75 @@ format = ["vtu"]
         assert!(!e.unwrap().file_name().to_string_lossy().ends_with(".tmp"));
     }
 }
+
+/// `mpm render`: one PNG per frame of the size the camera computes (2-D domain
+/// 1×1 at width 200 → 200×200), particles actually drawn (the jelly block covers
+/// 0.2×0.2 of the domain: ≈ 4 % of the 168² drawable pixels, so well over 300
+/// pixels), and an animated GIF with every frame; a directory without frames is
+/// refused with a message saying what to render.
+#[test]
+fn render_writes_pngs_and_gif() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = write_scene(dir.path(), "s.toml", SMALL_2D);
+    let out_dir = dir.path().join("out");
+    let run = mpm(&[
+        "run",
+        path.to_str().unwrap(),
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    for color in ["material", "speed"] {
+        let out = mpm(&[
+            "render",
+            out_dir.to_str().unwrap(),
+            "--width",
+            "200",
+            "--color",
+            color,
+        ]);
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        for f in 0..=5 {
+            let img = image::open(out_dir.join(format!("render/frame_{f:05}.png")))
+                .expect("PNG decodes")
+                .to_rgb8();
+            assert_eq!(img.dimensions(), (200, 200));
+            let drawn = img
+                .pixels()
+                .filter(|p| {
+                    let [r, g, b] = p.0;
+                    // Neither the background nor the grey box outline.
+                    let grey = r == g && g == b;
+                    let background = r >= 245 && g >= 245 && b >= 240;
+                    !(grey || background)
+                })
+                .count();
+            assert!(
+                drawn > 300,
+                "frame {f} ({color}): only {drawn} coloured pixels"
+            );
+        }
+        let gif = std::fs::File::open(out_dir.join("render/preview.gif")).expect("GIF written");
+        let decoder =
+            image::codecs::gif::GifDecoder::new(std::io::BufReader::new(gif)).expect("GIF decodes");
+        use image::AnimationDecoder;
+        assert_eq!(decoder.into_frames().count(), 6);
+    }
+    let empty = dir.path().join("empty");
+    std::fs::create_dir_all(&empty).unwrap();
+    let out = mpm(&["render", empty.to_str().unwrap()]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("summary.json") && err.contains("mpm run"),
+        "{err}"
+    );
+}

@@ -14,7 +14,9 @@
 
 use mpm_math::{Real, Vector};
 use rayon::prelude::*;
-use std::collections::HashMap;
+// A fixed, fast hash (rustc's FxHash): the keys are small integer triples, the maps
+// are never iterated for results, and SipHash showed up in profiles of `bin`.
+use rustc_hash::FxHashMap as HashMap;
 
 /// Nodes per block per axis.
 pub const BLOCK: i32 = 4;
@@ -350,16 +352,27 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
     /// reorder its particle arrays with it before scattering. Deterministic.
     pub fn bin(&mut self, home_cell: &[[i32; D]]) -> Vec<u32> {
         // Home block of each particle; unique blocks in a fixed order.
-        let mut ids: HashMap<[i32; D], u32> = HashMap::with_capacity(self.home_blocks.len() + 16);
+        let mut ids: HashMap<[i32; D], u32> = HashMap::default();
+        ids.reserve(self.home_blocks.len() + 16);
         let mut found: Vec<[i32; D]> = Vec::new();
         self.keys.clear();
         self.keys.reserve(home_cell.len());
+        // Particles arrive sorted by last step's blocks: consecutive ones mostly share
+        // a block, so the map is consulted only when the block changes.
+        let mut last: Option<([i32; D], u32)> = None;
         for c in home_cell {
             let b = c.map(|v| v.div_euclid(BLOCK));
-            let id = *ids.entry(b).or_insert_with(|| {
-                found.push(b);
-                (found.len() - 1) as u32
-            });
+            let id = match last {
+                Some((lb, lid)) if lb == b => lid,
+                _ => {
+                    let id = *ids.entry(b).or_insert_with(|| {
+                        found.push(b);
+                        (found.len() - 1) as u32
+                    });
+                    last = Some((b, id));
+                    id
+                }
+            };
             self.keys.push(id);
         }
         let mut sorted: Vec<u32> = (0..found.len() as u32).collect();

@@ -110,12 +110,15 @@ fn sin_cos_turns_f32(x: f32) -> (f32, f32) {
             + t2 * (-1.0 / 6.0
                 + t2 * (1.0 / 120.0 + t2 * (-1.0 / 5040.0 + t2 * (1.0 / 362880.0)))));
     let c = 1.0 + t2 * (-0.5 + t2 * (1.0 / 24.0 + t2 * (-1.0 / 720.0 + t2 * (1.0 / 40320.0))));
-    match (q4 as i64).rem_euclid(4) {
-        0 => (s, c),
-        1 => (c, -s),
-        2 => (-s, -c),
-        _ => (-c, s),
-    }
+    // Quarter turns q mod 4, branch-free (the quadrant is random per particle, so a
+    // `match` mispredicts): odd q swaps sin and cos; sin flips sign for q ∈ {2, 3},
+    // cos for q ∈ {1, 2}.
+    let q = (q4 as i32 & 3) as u32;
+    let swap = 0u32.wrapping_sub(q & 1);
+    let (sb, cb) = (s.to_bits(), c.to_bits());
+    let sin_bits = ((sb & !swap) | (cb & swap)) ^ (((q >> 1) & 1) << 31);
+    let cos_bits = ((cb & !swap) | (sb & swap)) ^ (((q ^ (q >> 1)) & 1) << 31);
+    (f32::from_bits(sin_bits), f32::from_bits(cos_bits))
 }
 
 impl Real for f64 {
