@@ -584,6 +584,20 @@ fn time_scene<T: Real, const D: usize, K: Kernel, L: GridLayout>(
             last_frame: 0,
             out: "(no output: benchmark)".into(),
         })?;
+    // Sanity after the timed steps: finite state, every particle inside the domain.
+    let p = &sim.particles;
+    let (lo, hi) = (sim.params.domain_min, sim.params.domain_max);
+    let not_finite = (0..p.len())
+        .filter(|&i| {
+            !p.x[i]
+                .iter()
+                .chain(p.v[i].iter())
+                .all(|c| c.is_finite_real())
+        })
+        .count();
+    let outside = (0..p.len())
+        .filter(|&i| (0..D).any(|a| p.x[i][a] < lo[a] || p.x[i][a] > hi[a]))
+        .count();
     let s = &scene.simulation;
     Ok(record(
         &timing,
@@ -601,7 +615,9 @@ fn time_scene<T: Real, const D: usize, K: Kernel, L: GridLayout>(
             "bytes_per_particle": bytes,
             "grid_bytes": sim.grid().heap_bytes(),
             "phases_ms_per_step": phase_json(&sim.phase_times(), 0.0, steps_done as f64),
-            "sane": true,
+            "nan": not_finite,
+            "outside_domain": outside,
+            "sane": not_finite == 0 && outside == 0,
         }),
     ))
 }

@@ -615,3 +615,37 @@ fn render_writes_pngs_and_gif() {
         "{err}"
     );
 }
+
+/// `mpm bench SCENE.toml` times the scene's own simulation and checks its state.
+#[test]
+fn bench_times_a_scene_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = write_scene(dir.path(), "s.toml", SMALL_2D);
+    let json = dir.path().join("r.jsonl");
+    let out = mpm(&[
+        "bench",
+        path.to_str().unwrap(),
+        "--warmup",
+        "1",
+        "--steps",
+        "3",
+        "--repeats",
+        "2",
+        "--threads",
+        "1",
+        "--json",
+        json.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let rec: serde_json::Value =
+        serde_json::from_str(std::fs::read_to_string(&json).unwrap().trim()).unwrap();
+    assert_eq!(rec["particles"], 400);
+    assert_eq!(rec["kernel"], "compact");
+    assert_eq!(rec["sane"], true);
+    assert_eq!(rec["walls"].as_array().unwrap().len(), 2);
+    assert!(rec["mpps"].as_f64().unwrap() > 0.0);
+}
