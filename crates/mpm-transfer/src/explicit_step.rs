@@ -4,10 +4,10 @@
 
 use crate::diagnostics::Totals;
 use crate::particles::Particles;
-use crate::scheme::{Gathered, TransferScheme};
+use crate::scheme::{Gathered, Needs, TransferScheme};
 use crate::StepError;
 use mpm_constitutive::{Material, StateMut};
-use mpm_grid::{optional_chunks, BlockSparseGrid, Collider, GridLayout, BLOCK};
+use mpm_grid::{optional_chunks, BlockSparseGrid, Collider, GatherView, GridLayout, BLOCK};
 use mpm_kernels::{Kernel, Stencil, MAX_NODES_PER_AXIS};
 use mpm_math::{try_inverse, Matrix, Real, Vector};
 use rayon::prelude::*;
@@ -324,53 +324,12 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
         params: &StepParams<T, D>,
     ) -> Result<(), StepError> {
         let h = params.h;
-        let dt = params.dt;
         let inv_h = T::one() / h;
         let gw = T::lit(L::gather_weight());
-        let gradient_form = Self::gradient_form();
-        let mut needs = scheme.needs(gradient_form);
-        // Viscous stress uses the least-squares velocity gradient `B D⁻¹` (weighted by
-        // w): `Σ v_i ∇wᵀ` over-weights nodes that a particle barely touches, whose
-        // small mass makes their velocity noisy, and viscosity feeds that noise back.
-        let viscous_fit = particles.needs.velocity_gradient && !gradient_form;
-        if viscous_fit {
-            needs.affine_moment = true;
-            needs.moment_matrix = true;
-        }
         let nodes = K::NODES_PER_AXIS.pow(D as u32);
-        let grid = &self.grid;
-        let homes = grid.home_of_sorted();
-        let (lo, hi) = (params.domain_min, params.domain_max);
-        let Particles {
-            id,
-            x,
-            v,
-            material,
-            deformation,
-            plastic,
-            jacobian,
-            velocity_gradient,
-            affine,
-            ..
-        } = particles;
-        let (id, material) = (&*id, &*material);
-        let n = x.len();
-
-        let one = |p: usize,
-                   xp: &mut Vector<T, D>,
-                   vp: &mut Vector<T, D>,
-                   ap: Option<&mut Matrix<T, D>>,
-                   mut state: StateMut<'_, T, D>|
-         -> Option<StepError> {
-            let view = grid.gather_view(homes[p] as usize);
+        let gather = |view: &GatherView<'_, T, D>, xp: &Vector<T, D>, needs: &Needs| {
             let st = stencils::<T, D, K, L>(xp, inv_h);
-            let mut g = Gathered {
-                velocity: Vector::<T, D>::zeros(),
-                velocity_change: Vector::<T, D>::zeros(),
-                affine_moment: Matrix::<T, D>::zeros(),
-                velocity_gradient: Matrix::<T, D>::zeros(),
-                moment_matrix: Matrix::<T, D>::zeros(),
-            };
+            let mut g = Gathered::zeros();
             for (k, s) in st.iter().enumerate().take(L::GRIDS) {
                 let ix = view.indexer(k, &s.base, K::NODES_PER_AXIS);
                 let (r_axis, g_axis) = axis_tables::<T, D, K>(s, h);
@@ -399,6 +358,65 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
             if needs.moment_matrix {
                 g.moment_matrix = moment_matrix::<T, D, L>(&st, h);
             }
+            g
+        };
+        self.update_particles_with(particles, materials, scheme, params, gather)
+    }
+
+    /// The particle side of G2P, shared by [`Self::grid_to_particle`] and the
+    /// reference step: `gather(view, x_p, needs)` returns the grid sums at one particle
+    /// (averaged over the grids); this updates velocity, affine matrix, material state
+    /// and position, and reports the first (lowest id) particle whose state is not
+    /// finite or not admissible for its model.
+    pub(crate) fn update_particles_with<S, G>(
+        &mut self,
+        particles: &mut Particles<T, D>,
+        materials: &[Material<T>],
+        scheme: &S,
+        params: &StepParams<T, D>,
+        gather: G,
+    ) -> Result<(), StepError>
+    where
+        S: TransferScheme<T, D>,
+        G: Fn(&GatherView<'_, T, D>, &Vector<T, D>, &Needs) -> Gathered<T, D> + Sync,
+    {
+        let dt = params.dt;
+        let gradient_form = Self::gradient_form();
+        let mut needs = scheme.needs(gradient_form);
+        // Viscous stress uses the least-squares velocity gradient `B D⁻¹` (weighted by
+        // w): `Σ v_i ∇wᵀ` over-weights nodes that a particle barely touches, whose
+        // small mass makes their velocity noisy, and viscosity feeds that noise back.
+        let viscous_fit = particles.needs.velocity_gradient && !gradient_form;
+        if viscous_fit {
+            needs.affine_moment = true;
+            needs.moment_matrix = true;
+        }
+        let grid = &self.grid;
+        let homes = grid.home_of_sorted();
+        let (lo, hi) = (params.domain_min, params.domain_max);
+        let Particles {
+            id,
+            x,
+            v,
+            material,
+            deformation,
+            plastic,
+            jacobian,
+            velocity_gradient,
+            affine,
+            ..
+        } = particles;
+        let (id, material) = (&*id, &*material);
+        let n = x.len();
+
+        let one = |p: usize,
+                   xp: &mut Vector<T, D>,
+                   vp: &mut Vector<T, D>,
+                   ap: Option<&mut Matrix<T, D>>,
+                   mut state: StateMut<'_, T, D>|
+         -> Option<StepError> {
+            let view = grid.gather_view(homes[p] as usize);
+            let g = gather(&view, xp, &needs);
             let up = scheme.update(vp, &g, gradient_form);
             *vp = up.velocity;
             let mut xn = *xp + up.velocity * dt;

@@ -2,15 +2,14 @@
 //! accessors: the reference the optimised loops of [`ExplicitStepper`] are tested
 //! against (to round-off in f64), and the readable statement of what they compute.
 
-use crate::explicit_step::{particle_chunks, ExplicitStepper, StepParams, PARTICLE_CHUNK};
+use crate::explicit_step::{ExplicitStepper, StepParams};
 use crate::particles::Particles;
-use crate::scheme::{Gathered, TransferScheme};
+use crate::scheme::{Gathered, Needs, TransferScheme};
 use crate::StepError;
-use mpm_constitutive::{Material, StateMut};
-use mpm_grid::GridLayout;
+use mpm_constitutive::Material;
+use mpm_grid::{GatherView, GridLayout};
 use mpm_kernels::{Kernel, Stencil};
 use mpm_math::{try_inverse, Matrix, Real, Vector};
-use rayon::prelude::*;
 
 /// Each grid's stencil evaluated on its own ([`Stencil::new`]).
 fn reference_stencils<T: Real, const D: usize, K: Kernel, L: GridLayout>(
@@ -138,52 +137,11 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
         params: &StepParams<T, D>,
     ) -> Result<(), StepError> {
         let h = params.h;
-        let dt = params.dt;
         let inv_h = T::one() / h;
         let gw = T::lit(L::gather_weight());
-        let gradient_form = Self::gradient_form();
-        let mut needs = scheme.needs(gradient_form);
-        // Viscous stress uses the least-squares velocity gradient `B D⁻¹` (weighted by
-        // w): `Σ v_i ∇wᵀ` over-weights nodes that a particle barely touches, whose
-        // small mass makes their velocity noisy, and viscosity feeds that noise back.
-        let viscous_fit = particles.needs.velocity_gradient && !gradient_form;
-        if viscous_fit {
-            needs.affine_moment = true;
-            needs.moment_matrix = true;
-        }
-        let grid = &self.grid;
-        let homes = grid.home_of_sorted();
-        let (lo, hi) = (params.domain_min, params.domain_max);
-        let Particles {
-            id,
-            x,
-            v,
-            material,
-            deformation,
-            plastic,
-            jacobian,
-            velocity_gradient,
-            affine,
-            ..
-        } = particles;
-        let (id, material) = (&*id, &*material);
-        let n = x.len();
-
-        let one = |p: usize,
-                   xp: &mut Vector<T, D>,
-                   vp: &mut Vector<T, D>,
-                   ap: Option<&mut Matrix<T, D>>,
-                   mut state: StateMut<'_, T, D>|
-         -> Option<StepError> {
-            let view = grid.gather_view(homes[p] as usize);
+        let gather = |view: &GatherView<'_, T, D>, xp: &Vector<T, D>, needs: &Needs| {
             let st = reference_stencils::<T, D, K, L>(xp, inv_h);
-            let mut g = Gathered {
-                velocity: Vector::<T, D>::zeros(),
-                velocity_change: Vector::<T, D>::zeros(),
-                affine_moment: Matrix::<T, D>::zeros(),
-                velocity_gradient: Matrix::<T, D>::zeros(),
-                moment_matrix: Matrix::<T, D>::zeros(),
-            };
+            let mut g = Gathered::zeros();
             for (k, s) in st.iter().enumerate().take(L::GRIDS) {
                 for q in 0..s.node_count() {
                     let j = s.local(q);
@@ -213,80 +171,8 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
             g.affine_moment *= gw;
             g.velocity_gradient *= gw;
             g.moment_matrix *= gw;
-            let up = scheme.update(vp, &g, gradient_form);
-            *vp = up.velocity;
-            let mut xn = *xp + up.velocity * dt;
-            for a in 0..D {
-                // Last safeguard: the walls act one cell inside the domain.
-                xn[a] = xn[a].clamp(lo[a], hi[a]);
-            }
-            *xp = xn;
-            if let (Some(a), Some(b)) = (ap, up.affine) {
-                *a = b;
-            }
-            let pid = id[p];
-            if !up.velocity.iter().all(|c| c.is_finite_real()) {
-                return Some(StepError::NonFinite {
-                    particle: pid,
-                    quantity: "velocity",
-                });
-            }
-            if !xn.iter().all(|c| c.is_finite_real()) {
-                return Some(StepError::NonFinite {
-                    particle: pid,
-                    quantity: "position",
-                });
-            }
-            let model = &materials[material[p] as usize];
-            let viscous_gradient = if viscous_fit {
-                try_inverse(&g.moment_matrix).map(|d_inv| g.affine_moment * d_inv)
-            } else {
-                None
-            };
-            let viscous_gradient = viscous_gradient.unwrap_or(up.velocity_gradient);
-            model
-                .advance(&mut state, &up.velocity_gradient, &viscous_gradient, dt)
-                .err()
-                .map(|fault| StepError::from_fault(pid, model.name(), fault))
+            g
         };
-
-        // Every array split into the same chunks (absent arrays: empty slices), so
-        // one parallel loop updates whichever arrays this scene stores.
-        let first_error = (
-            particle_chunks(x, n),
-            particle_chunks(v, n),
-            particle_chunks(affine, n),
-            particle_chunks(deformation, n),
-            particle_chunks(plastic, n),
-            particle_chunks(jacobian, n),
-            particle_chunks(velocity_gradient, n),
-        )
-            .into_par_iter()
-            .enumerate()
-            .filter_map(|(c, (xs, vs, as_, fs, qs, js, ls))| {
-                let mut worst: Option<StepError> = None;
-                let mut as_ = as_.iter_mut();
-                let mut fs = fs.iter_mut();
-                let mut qs = qs.iter_mut();
-                let mut js = js.iter_mut();
-                let mut ls = ls.iter_mut();
-                for (k, (xp, vp)) in xs.iter_mut().zip(vs.iter_mut()).enumerate() {
-                    let state = StateMut {
-                        deformation: fs.next(),
-                        plastic: qs.next(),
-                        jacobian: js.next(),
-                        velocity_gradient: ls.next(),
-                    };
-                    if let Some(e) = one(c * PARTICLE_CHUNK + k, xp, vp, as_.next(), state) {
-                        worst = Some(e.lowest(worst));
-                    }
-                }
-                worst
-            })
-            .min_by_key(|e| e.particle());
-        match first_error {
-            Some(e) => Err(e),
-            None => Ok(()),
-        }
+        self.update_particles_with(particles, materials, scheme, params, gather)
     }
 }

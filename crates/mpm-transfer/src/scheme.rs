@@ -21,6 +21,20 @@ pub struct Gathered<T: Real, const D: usize> {
     pub moment_matrix: Matrix<T, D>,
 }
 
+impl<T: Real, const D: usize> Gathered<T, D> {
+    /// All sums zero (the start of a gather).
+    #[inline(always)]
+    pub fn zeros() -> Self {
+        Gathered {
+            velocity: Vector::<T, D>::zeros(),
+            velocity_change: Vector::<T, D>::zeros(),
+            affine_moment: Matrix::<T, D>::zeros(),
+            velocity_gradient: Matrix::<T, D>::zeros(),
+            moment_matrix: Matrix::<T, D>::zeros(),
+        }
+    }
+}
+
 /// What the G2P gather must compute for a scheme.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Needs {
