@@ -12,5 +12,5 @@ pub mod simulation;
 pub mod updated_lagrangian;
 
 pub use reference::{Adaptive, Eulerian, Reference, ReferenceConfig, TotalLagrangian};
-pub use simulation::{Simulation, SimulationError, TimeStepPolicy};
-pub use updated_lagrangian::{ReferenceState, UpdatedLagrangianStepper};
+pub use simulation::{Simulation, SimulationError, SimulationSnapshot, TimeStepPolicy};
+pub use updated_lagrangian::{LagrangianSnapshot, ReferenceState, UpdatedLagrangianStepper};

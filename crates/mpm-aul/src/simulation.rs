@@ -2,7 +2,7 @@
 //! configuration and the stepper, advanced to requested times.
 
 use crate::reference::Reference;
-use crate::updated_lagrangian::UpdatedLagrangianStepper;
+use crate::updated_lagrangian::{LagrangianSnapshot, UpdatedLagrangianStepper};
 use mpm_constitutive::Material;
 use mpm_grid::BlockSparseGrid;
 use mpm_grid::{Collider, GridLayout};
@@ -34,6 +34,29 @@ pub struct SimulationError {
     #[source]
     pub source: StepError,
 }
+
+/// Everything that evolves during a run, for checkpoints: restored into a simulation
+/// built from the same scene, the run continues bit for bit as if never stopped.
+/// Materials, transfer, colliders and the time-step rule come from the scene.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+#[serde(bound = "")]
+pub struct SimulationSnapshot<T: Real, const D: usize> {
+    /// Particle state, in storage order.
+    pub particles: Particles<T, D>,
+    /// Current time.
+    pub time: f64,
+    /// Steps taken.
+    pub steps: u64,
+    /// Reference updates so far.
+    pub reference_updates: u64,
+    /// Stored reference state (total-Lagrangian and adaptive only).
+    pub lagrangian: Option<LagrangianSnapshot<T, D>>,
+}
+
+/// A snapshot that does not fit the simulation it is restored into.
+#[derive(Debug, thiserror::Error)]
+#[error("the checkpoint does not fit this scene: {0}")]
+pub struct RestoreError(pub String);
 
 /// A running simulation with kernel `K` on layout `L`.
 pub struct Simulation<T: Real, const D: usize, K: Kernel, L: GridLayout> {
@@ -226,6 +249,61 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Simulation<T, D, K, L> {
                 Stepper::Lagrangian(Box::new(st))
             }
         };
+    }
+
+    /// The evolving state, for a checkpoint.
+    pub fn snapshot(&self) -> SimulationSnapshot<T, D> {
+        SimulationSnapshot {
+            particles: self.particles.clone(),
+            time: self.time,
+            steps: self.steps,
+            reference_updates: self.reference_updates,
+            lagrangian: match &self.stepper {
+                Stepper::Eulerian(_) => None,
+                Stepper::Lagrangian(st) => Some(st.snapshot()),
+            },
+        }
+    }
+
+    /// Continues from `snapshot`, taken from a simulation built from the same scene
+    /// (same reference kind, materials and particle arrays).
+    pub fn restore(&mut self, snapshot: SimulationSnapshot<T, D>) -> Result<(), RestoreError> {
+        let p = &snapshot.particles;
+        let n = p.len();
+        let lengths_ok = p.id.len() == n
+            && p.v.len() == n
+            && p.mass.len() == n
+            && p.volume.len() == n
+            && p.material.len() == n
+            && p.material
+                .iter()
+                .all(|&m| (m as usize) < self.materials.len())
+            && p.stores_affine == self.particles.stores_affine
+            && p.needs == self.particles.needs;
+        if !lengths_ok {
+            return Err(RestoreError(
+                "particle arrays or materials differ from the scene's".into(),
+            ));
+        }
+        match (&mut self.stepper, snapshot.lagrangian) {
+            (Stepper::Eulerian(_), None) => {}
+            (Stepper::Lagrangian(st), Some(l)) => st.restore(l, p).map_err(RestoreError)?,
+            (Stepper::Eulerian(_), Some(_)) => {
+                return Err(RestoreError(
+                    "it holds a Lagrangian reference but the scene is Eulerian".into(),
+                ))
+            }
+            (Stepper::Lagrangian(_), None) => {
+                return Err(RestoreError(
+                    "it is Eulerian but the scene has a Lagrangian reference".into(),
+                ))
+            }
+        }
+        self.particles = snapshot.particles;
+        self.time = snapshot.time;
+        self.steps = snapshot.steps;
+        self.reference_updates = snapshot.reference_updates;
+        Ok(())
     }
 
     /// Tells a Lagrangian stepper which body each particle (by id) belongs to: each

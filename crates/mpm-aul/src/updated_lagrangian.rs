@@ -66,7 +66,8 @@ use std::marker::PhantomData;
 use std::time::Instant;
 
 /// Per-particle reference-configuration state (in particle order).
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
+#[serde(bound = "")]
 pub struct ReferenceState<T: Real, const D: usize> {
     /// Reference position `X_p` (position at the last rebuild).
     pub position: Vec<Vector<T, D>>,
@@ -78,6 +79,29 @@ pub struct ReferenceState<T: Real, const D: usize> {
     pub weights: Vec<T>,
     /// Stored weight gradients `∇_X W_ip` (kernel-MPM variant only, else empty).
     pub gradients: Vec<Vector<T, D>>,
+}
+
+/// The part of an [`UpdatedLagrangianStepper`] a checkpoint stores.
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
+#[serde(bound = "")]
+pub struct LagrangianSnapshot<T: Real, const D: usize> {
+    /// Stored reference state.
+    pub state: ReferenceState<T, D>,
+    /// Lattice cell of each particle at the last rebuild (lane included), `D` integers
+    /// per particle.
+    pub cells: Vec<i32>,
+    /// Lane offsets of each particle (multi-body only).
+    pub lanes: Vec<i32>,
+    /// `det Fˢⁿ − 1` of the last step (the rebuild criterion's input).
+    pub delta_j: Vec<f64>,
+    /// Whether a reference exists.
+    pub built: bool,
+    /// Rebuilds so far.
+    pub rebuilds: u64,
+    /// Weight evaluations so far.
+    pub weight_evaluations: u64,
+    /// Seconds spent in rebuilds so far.
+    pub rebuild_seconds: f64,
 }
 
 /// The updated-Lagrangian stepper: a grid binned by reference positions and the
@@ -189,6 +213,68 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
         self.bodies.get(id as usize).map_or(0, |&b| b as i32 * LANE)
     }
 
+    /// What a checkpoint must keep to continue bit for bit: the stored reference state
+    /// and the lattice cells it was binned with (the grid itself is re-binned from them).
+    pub fn snapshot(&self) -> LagrangianSnapshot<T, D> {
+        LagrangianSnapshot {
+            state: self.state.clone(),
+            cells: self.cells.iter().flatten().copied().collect(),
+            lanes: self.lanes.clone(),
+            delta_j: self.delta_j.clone(),
+            built: self.built,
+            rebuilds: self.rebuilds,
+            weight_evaluations: self.weight_evaluations,
+            rebuild_seconds: self.rebuild_seconds,
+        }
+    }
+
+    /// Restores a [`Self::snapshot`] taken with `particles` in their current order. The
+    /// stable binning of already-binned cells is the identity; anything else means the
+    /// snapshot does not belong to these particles.
+    pub fn restore(
+        &mut self,
+        snapshot: LagrangianSnapshot<T, D>,
+        particles: &Particles<T, D>,
+    ) -> Result<(), String> {
+        let n = particles.len();
+        let npp = Self::nodes_per_particle();
+        let st = &snapshot.state;
+        if snapshot.built
+            && (st.position.len() != n
+                || st.relative_deformation.len() != n
+                || st.moment_inverse.len() != n
+                || st.weights.len() != n * npp
+                || snapshot.cells.len() != n * D)
+        {
+            return Err(format!(
+                "reference state for {} particles and {} stencil weights, expected {n} and {}",
+                st.position.len(),
+                st.weights.len(),
+                n * npp
+            ));
+        }
+        let cells: Vec<[i32; D]> = snapshot
+            .cells
+            .chunks_exact(D)
+            .map(|c| std::array::from_fn(|a| c[a]))
+            .collect();
+        if snapshot.built {
+            let order = self.grid.bin(&cells);
+            if order.iter().enumerate().any(|(i, &o)| o as usize != i) {
+                return Err("particles are not in the order of their reference lattice".into());
+            }
+        }
+        self.state = snapshot.state;
+        self.cells = cells;
+        self.lanes = snapshot.lanes;
+        self.delta_j = snapshot.delta_j;
+        self.built = snapshot.built;
+        self.rebuilds = snapshot.rebuilds;
+        self.weight_evaluations = snapshot.weight_evaluations;
+        self.rebuild_seconds = snapshot.rebuild_seconds;
+        Ok(())
+    }
+
     /// Stencil nodes per particle over all grids.
     pub const fn nodes_per_particle() -> usize {
         let mut n = 1;
@@ -227,6 +313,8 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
         self.cells = cells;
         let order = self.grid.bin(&self.cells);
         particles.reorder(&order);
+        // Cells follow their particles (checkpoints store them in particle order).
+        self.cells = order.iter().map(|&o| self.cells[o as usize]).collect();
         // Particles keep this order until the next rebuild: so do their lanes.
         self.lanes = if self.multi_body {
             particles.id.iter().map(|&id| self.lane(id)).collect()

@@ -13,7 +13,7 @@ use crate::{
 use mpm_math::{determinant, Matrix, Real};
 
 /// Which per-particle arrays a model needs.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct StateNeeds {
     /// The deformation gradient `F` (elastic part `F_E` for plastic models).
     pub deformation: bool,

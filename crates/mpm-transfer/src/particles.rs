@@ -9,7 +9,9 @@ use rayon::prelude::*;
 /// locality; `id` is each particle's original index, stable for output. Material
 /// state arrays exist only when some material of the scene needs them
 /// ([`StateNeeds`]); the affine matrix only for APIC/MLS.
-#[derive(Clone, Debug, Default)]
+/// Serialisable (checkpoints): every array round-trips bit for bit.
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
+#[serde(bound = "")]
 pub struct Particles<T: Real, const D: usize> {
     /// Original index (creation order).
     pub id: Vec<u32>,
