@@ -26,6 +26,8 @@ fn pieces(reference: &str, extra: &[&str]) -> usize {
         progress: false,
         origin: reference.into(),
         threads: 2,
+        checkpoint_every: None,
+        source: None,
     };
     run_scene(&scene, &opts).unwrap();
     let bytes = std::fs::read(dir.path().join("frames/frame_00001.ply")).unwrap();

@@ -72,6 +72,8 @@ fn check_scene(name: &str) -> String {
         progress: false,
         origin: name.into(),
         threads: 2,
+        checkpoint_every: None,
+        source: None,
     };
     let report = run_scene(&scene, &opts).unwrap_or_else(|e| panic!("{name}: {e}"));
     let stats = std::fs::read_to_string(dir.path().join("stats.csv")).unwrap();
@@ -155,6 +157,8 @@ fn fluid_only_scene_stores_no_deformation_gradient() {
             progress: false,
             origin: "dam".into(),
             threads: 1,
+            checkpoint_every: None,
+            source: None,
         };
         run_scene(&scene, &opts).unwrap();
         let s: serde_json::Value = serde_json::from_str(

@@ -90,6 +90,8 @@ fn run_and_report(text: &str, name: &str) -> String {
         progress: false,
         origin: name.into(),
         threads: 2,
+        checkpoint_every: None,
+        source: None,
     };
     run_scene(&scene, &opts).expect("run");
     let stats = std::fs::read_to_string(dir.path().join("stats.csv")).unwrap();

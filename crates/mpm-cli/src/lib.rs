@@ -3,6 +3,7 @@
 //! `mpm run` ([`run`]) and `mpm bench` ([`bench`]).
 
 pub mod bench;
+pub mod checkpoint;
 pub mod mesh;
 pub mod output;
 pub mod render;

@@ -2,7 +2,8 @@
 
 use clap::{Parser, Subcommand};
 use mpm_cli::bench;
-use mpm_cli::run::{run_scene, RunOptions};
+use mpm_cli::checkpoint::SceneSource;
+use mpm_cli::run::{resume_run, run_scene, Resumed, RunOptions};
 use mpm_cli::scene::{load_scene, parse_scene, OutputFormat, Scene, SceneError};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -36,6 +37,26 @@ enum Command {
         /// Stop after this many output frames (frame 0, the initial state, not counted).
         #[arg(long)]
         frames: Option<usize>,
+        /// Write OUT/checkpoint.bin (atomically) every N frames and at the last frame;
+        /// `mpm resume OUT` then continues bit-identically.
+        #[arg(long, value_name = "N")]
+        checkpoint_every: Option<usize>,
+    },
+    /// Continue a run from DIR/checkpoint.bin (written by `mpm run --checkpoint-every`):
+    /// the frames after the checkpoint are written again, bit-identical to a run that
+    /// was never interrupted.
+    Resume {
+        /// Output directory of the interrupted run.
+        dir: PathBuf,
+        /// Worker threads [default: all cores]; results do not depend on it.
+        #[arg(long)]
+        threads: Option<usize>,
+        /// Stop after this many more output frames.
+        #[arg(long)]
+        frames: Option<usize>,
+        /// Change the checkpoint interval [default: the checkpoint's].
+        #[arg(long, value_name = "N")]
+        checkpoint_every: Option<usize>,
     },
     /// Time the peers' benchmark scenes (Taichi/Warp, ../shared/peers) or a scene file:
     /// warm-up, repeated timed segments, best and median throughput, phase times,
@@ -140,6 +161,28 @@ fn load(scene: Option<&PathBuf>, set: &[String]) -> Result<(Scene, String, Strin
     }
 }
 
+/// The source text a checkpoint keeps (the file just loaded, or the built-in demo).
+fn scene_source(scene: Option<&PathBuf>, set: &[String]) -> std::io::Result<SceneSource> {
+    match scene {
+        Some(path) => SceneSource::from_file(path, set),
+        None => Ok(SceneSource {
+            text: DEMO.to_string(),
+            overrides: set.to_vec(),
+            base_dir: None,
+        }),
+    }
+}
+
+fn thread_pool(threads: Option<usize>) -> Result<rayon::ThreadPool, String> {
+    if threads == Some(0) {
+        return Err("--threads must be at least 1".into());
+    }
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads.unwrap_or(0))
+        .build()
+        .map_err(|e| format!("cannot start {threads:?} threads: {e}"))
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     match cli.command {
@@ -209,6 +252,53 @@ fn main() -> ExitCode {
                 }
             }
         }
+        Command::Resume {
+            dir,
+            threads,
+            frames,
+            checkpoint_every,
+        } => {
+            let pool = match thread_pool(threads) {
+                Ok(p) => p,
+                Err(e) => {
+                    eprintln!("error: {e}");
+                    return ExitCode::FAILURE;
+                }
+            };
+            let opts = RunOptions {
+                out: dir.clone(),
+                max_frames: frames,
+                progress: true,
+                origin: String::new(),
+                threads: pool.current_num_threads(),
+                checkpoint_every,
+                source: None,
+            };
+            match pool.install(|| resume_run(&opts)) {
+                Ok(Resumed::Continued { from_frame, report }) => {
+                    println!(
+                        "resumed at frame {from_frame}: now {} frames ({} particles, {} steps, {:.1} s) in {}/",
+                        report.frames,
+                        report.particles,
+                        report.steps,
+                        report.wall_seconds,
+                        dir.display()
+                    );
+                    ExitCode::SUCCESS
+                }
+                Ok(Resumed::AlreadyComplete { frame }) => {
+                    println!(
+                        "{}: nothing to do, the run is complete (checkpoint at its last frame, {frame})",
+                        dir.display()
+                    );
+                    ExitCode::SUCCESS
+                }
+                Err(e) => {
+                    eprintln!("error: {e}");
+                    ExitCode::FAILURE
+                }
+            }
+        }
         Command::Validate { scene, set } => match load(Some(&scene), &set) {
             Ok((scene, origin, _)) => {
                 let s = &scene.simulation;
@@ -246,25 +336,28 @@ fn main() -> ExitCode {
             set,
             threads,
             frames,
+            checkpoint_every,
         } => {
-            let (scene, origin, stem) = match load(scene.as_ref(), &set) {
+            let (scene_def, origin, stem) = match load(scene.as_ref(), &set) {
                 Ok(x) => x,
                 Err(e) => {
                     eprintln!("error: {e}");
                     return ExitCode::FAILURE;
                 }
             };
-            if threads == Some(0) {
-                eprintln!("error: --threads must be at least 1");
-                return ExitCode::FAILURE;
-            }
-            let pool = match rayon::ThreadPoolBuilder::new()
-                .num_threads(threads.unwrap_or(0))
-                .build()
-            {
+            let source = match checkpoint_every.map(|_| scene_source(scene.as_ref(), &set)) {
+                Some(Err(e)) => {
+                    eprintln!("error: cannot read {origin} again for the checkpoint: {e}");
+                    return ExitCode::FAILURE;
+                }
+                Some(Ok(s)) => Some(s),
+                None => None,
+            };
+            let scene = scene_def;
+            let pool = match thread_pool(threads) {
                 Ok(p) => p,
                 Err(e) => {
-                    eprintln!("error: cannot start {threads:?} threads: {e}");
+                    eprintln!("error: {e}");
                     return ExitCode::FAILURE;
                 }
             };
@@ -275,6 +368,8 @@ fn main() -> ExitCode {
                 progress: true,
                 origin,
                 threads: pool.current_num_threads(),
+                checkpoint_every,
+                source,
             };
             let mut files: Vec<&str> = Vec::new();
             if scene.output.format.contains(&OutputFormat::Ply) {

@@ -346,6 +346,22 @@ impl StatsWriter {
         w
     }
 
+    /// A writer continuing `contents` (a checkpoint's stats.csv), which must start with
+    /// this writer's header.
+    pub fn from_contents(probe_names: Vec<String>, contents: String) -> Result<Self, String> {
+        let w = StatsWriter {
+            probes: probe_names,
+            text: contents,
+        };
+        let header = w.header();
+        match w.text.lines().next() {
+            Some(first) if first == header && w.text.ends_with('\n') => Ok(w),
+            _ => Err(format!(
+                "its stats.csv rows do not match the scene's columns ({header})"
+            )),
+        }
+    }
+
     /// The header line (no newline).
     pub fn header(&self) -> String {
         let mut h = STATS_HEADER.to_string();

@@ -2,6 +2,7 @@
 //! kernel × layout, dispatched once here) and writes frames, stats.csv and
 //! summary.json.
 
+use crate::checkpoint::{encode, Checkpoint, CheckpointHeader, SceneSource, CHECKPOINT_FILE};
 use crate::output::{
     ply_bytes, pvd_text, vtu_bytes, write_atomic, ParticleFields, StatsRow, StatsWriter,
 };
@@ -36,6 +37,10 @@ pub struct RunOptions {
     pub origin: String,
     /// Threads in use (reported).
     pub threads: usize,
+    /// Write `checkpoint.bin` every this many frames (and at the last frame).
+    pub checkpoint_every: Option<usize>,
+    /// The scene's source (needed for checkpoints).
+    pub source: Option<SceneSource>,
 }
 
 /// What a finished run reports.
@@ -74,6 +79,9 @@ pub enum RunError {
         /// Output directory.
         out: String,
     },
+    /// A checkpoint could not be used or written.
+    #[error("{0}")]
+    Checkpoint(String),
     /// A scene value the simulation cannot use.
     #[error("{origin}: {key}: {message}")]
     Scene {
@@ -95,35 +103,101 @@ fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> RunError + '_ {
 
 /// Runs a validated scene.
 pub fn run_scene(scene: &Scene, opts: &RunOptions) -> Result<RunReport, RunError> {
+    run_from(scene, opts, None)
+}
+
+/// What `mpm resume` reports besides the run.
+#[derive(Clone, Debug)]
+pub enum Resumed {
+    /// The run went on from `from_frame`.
+    Continued {
+        /// Frame the checkpoint held.
+        from_frame: usize,
+        /// The continued run.
+        report: RunReport,
+    },
+    /// The checkpoint is at the scene's last frame already.
+    AlreadyComplete {
+        /// That frame.
+        frame: usize,
+    },
+}
+
+/// Continues the run whose output directory `opts.out` holds a checkpoint, writing
+/// the frames after it (overwriting any a killed run left) and extending stats.csv
+/// from the checkpoint's rows. `opts.origin`, `source` and (when `None`)
+/// `checkpoint_every` are taken from the checkpoint.
+pub fn resume_run(opts: &RunOptions) -> Result<Resumed, RunError> {
+    let ck = Checkpoint::read(&opts.out).map_err(|e| RunError::Checkpoint(e.to_string()))?;
+    let scene = ck.scene().map_err(|e| {
+        RunError::Checkpoint(format!(
+            "{}: its scene no longer loads: {e}",
+            ck.path.display()
+        ))
+    })?;
+    let s = &scene.simulation;
+    let total_frames = ((s.end_time / s.frame_dt) - 1e-9).ceil().max(1.0) as usize;
+    if ck.header.frame >= total_frames {
+        return Ok(Resumed::AlreadyComplete {
+            frame: ck.header.frame,
+        });
+    }
+    let mut o = opts.clone();
+    o.origin = ck.header.origin.clone();
+    o.source = Some(ck.header.source.clone());
+    o.checkpoint_every = Some(o.checkpoint_every.unwrap_or(ck.header.every));
+    let report = run_from(&scene, &o, Some(&ck))?;
+    Ok(Resumed::Continued {
+        from_frame: ck.header.frame,
+        report,
+    })
+}
+
+fn run_from(
+    scene: &Scene,
+    opts: &RunOptions,
+    resume: Option<&Checkpoint>,
+) -> Result<RunReport, RunError> {
     let s = &scene.simulation;
     match (s.dim, s.precision) {
-        (2, Precision::F32) => run_dim::<f32, 2>(scene, opts),
-        (2, Precision::F64) => run_dim::<f64, 2>(scene, opts),
-        (3, Precision::F32) => run_dim::<f32, 3>(scene, opts),
-        _ => run_dim::<f64, 3>(scene, opts),
+        (2, Precision::F32) => run_dim::<f32, 2>(scene, opts, resume),
+        (2, Precision::F64) => run_dim::<f64, 2>(scene, opts, resume),
+        (3, Precision::F32) => run_dim::<f32, 3>(scene, opts, resume),
+        _ => run_dim::<f64, 3>(scene, opts, resume),
     }
 }
 
 fn run_dim<T: Real, const D: usize>(
     scene: &Scene,
     opts: &RunOptions,
+    resume: Option<&Checkpoint>,
 ) -> Result<RunReport, RunError> {
     let s = &scene.simulation;
     match (s.kernel, s.grid) {
-        (KernelKind::Linear, GridKind::Single) => run_typed::<T, D, Linear, Single>(scene, opts),
-        (KernelKind::Linear, GridKind::Dual) => run_typed::<T, D, Linear, Dual>(scene, opts),
+        (KernelKind::Linear, GridKind::Single) => {
+            run_typed::<T, D, Linear, Single>(scene, opts, resume)
+        }
+        (KernelKind::Linear, GridKind::Dual) => {
+            run_typed::<T, D, Linear, Dual>(scene, opts, resume)
+        }
         (KernelKind::Quadratic, GridKind::Single) => {
-            run_typed::<T, D, QuadraticBSpline, Single>(scene, opts)
+            run_typed::<T, D, QuadraticBSpline, Single>(scene, opts, resume)
         }
         (KernelKind::Quadratic, GridKind::Dual) => {
-            run_typed::<T, D, QuadraticBSpline, Dual>(scene, opts)
+            run_typed::<T, D, QuadraticBSpline, Dual>(scene, opts, resume)
         }
         (KernelKind::Cubic, GridKind::Single) => {
-            run_typed::<T, D, CubicBSpline, Single>(scene, opts)
+            run_typed::<T, D, CubicBSpline, Single>(scene, opts, resume)
         }
-        (KernelKind::Cubic, GridKind::Dual) => run_typed::<T, D, CubicBSpline, Dual>(scene, opts),
-        (KernelKind::Compact, GridKind::Single) => run_typed::<T, D, Compact, Single>(scene, opts),
-        (KernelKind::Compact, GridKind::Dual) => run_typed::<T, D, Compact, Dual>(scene, opts),
+        (KernelKind::Cubic, GridKind::Dual) => {
+            run_typed::<T, D, CubicBSpline, Dual>(scene, opts, resume)
+        }
+        (KernelKind::Compact, GridKind::Single) => {
+            run_typed::<T, D, Compact, Single>(scene, opts, resume)
+        }
+        (KernelKind::Compact, GridKind::Dual) => {
+            run_typed::<T, D, Compact, Dual>(scene, opts, resume)
+        }
     }
 }
 
@@ -509,28 +583,61 @@ pub fn particle_fields<T: Real, const D: usize>(
 fn run_typed<T: Real, const D: usize, K: Kernel, L: GridLayout>(
     scene: &Scene,
     opts: &RunOptions,
+    resume: Option<&Checkpoint>,
 ) -> Result<RunReport, RunError> {
     let started = Instant::now();
     let s = &scene.simulation;
     let (mut sim, body_of) = build_simulation::<T, D, K, L>(scene, &opts.origin)?;
+    let probe_names: Vec<String> = scene.probe.iter().map(|p| p.name.clone()).collect();
+    let mut stats = StatsWriter::new(probe_names.clone());
+    // (time, file) of every VTU frame so far; the collection is rewritten each frame.
+    let mut pvd: Vec<(f64, String)> = Vec::new();
+    let (mut first_frame, mut wall_before, mut output_seconds) = (1, 0.0, 0.0);
+    if let Some(ck) = resume {
+        let checkpoint_err =
+            |e: String| RunError::Checkpoint(format!("{}: {e}", ck.path.display()));
+        let state = ck
+            .state::<T, D>()
+            .map_err(|e| RunError::Checkpoint(e.to_string()))?;
+        sim.restore(state)
+            .map_err(|e| checkpoint_err(e.to_string()))?;
+        stats = StatsWriter::from_contents(probe_names, ck.header.stats.clone())
+            .map_err(checkpoint_err)?;
+        pvd.clone_from(&ck.header.pvd);
+        first_frame = ck.header.frame + 1;
+        wall_before = ck.header.wall_seconds;
+        output_seconds = ck.header.output_seconds;
+    }
+    let checkpoint_path = opts.out.join(CHECKPOINT_FILE);
+    let checkpoint_every = match (opts.checkpoint_every, &opts.source) {
+        (Some(0), _) => {
+            return Err(RunError::Checkpoint(
+                "--checkpoint-every must be at least 1 (frames between checkpoints)".into(),
+            ))
+        }
+        (Some(n), Some(source)) => Some((n, source)),
+        (Some(_), None) => {
+            return Err(RunError::Checkpoint(format!(
+                "{}: checkpoints need the scene's source text; run a scene file",
+                opts.origin
+            )))
+        }
+        (None, _) => None,
+    };
     let frames_dir = opts.out.join("frames");
     std::fs::create_dir_all(&frames_dir).map_err(io_err(&frames_dir))?;
     let stats_path = opts.out.join("stats.csv");
     let summary_path = opts.out.join("summary.json");
-    let mut stats = StatsWriter::new(scene.probe.iter().map(|p| p.name.clone()).collect());
     let gravity = s.gravity.clone();
 
     let total_frames = ((s.end_time / s.frame_dt) - 1e-9).ceil().max(1.0) as usize;
     let last_frame = opts
         .max_frames
-        .map_or(total_frames, |n| n.min(total_frames));
+        .map_or(total_frames, |n| (first_frame - 1 + n).min(total_frames));
     let bar = progress_bar(opts.progress, last_frame as u64);
-    let mut output_seconds = 0.0;
     let ply = scene.output.format.contains(&OutputFormat::Ply);
     let vtu = scene.output.format.contains(&OutputFormat::Vtu);
     let pvd_path = opts.out.join("frames.pvd");
-    // (time, file) of every VTU frame so far; the collection is rewritten each frame.
-    let mut pvd: Vec<(f64, String)> = Vec::new();
 
     let mut write_frame = |frame: usize,
                            sim: &Simulation<T, D, K, L>,
@@ -559,7 +666,7 @@ fn run_typed<T: Real, const D: usize, K: Kernel, L: GridLayout>(
             frame,
             time: sim.time,
             steps: sim.steps,
-            wall_seconds: started.elapsed().as_secs_f64(),
+            wall_seconds: wall_before + started.elapsed().as_secs_f64(),
             particles: sim.particles.len(),
             mass: t.mass,
             kinetic_energy: t.kinetic_energy,
@@ -572,14 +679,37 @@ fn run_typed<T: Real, const D: usize, K: Kernel, L: GridLayout>(
         };
         stats.push(&row, &probe_values(scene, &sim.particles, &body_of));
         stats.write(&stats_path).map_err(io_err(&stats_path))?;
+        // Written last: a checkpoint never points past the frames and rows on disk.
+        if let Some((every, source)) = checkpoint_every {
+            if frame.is_multiple_of(every) || frame == last_frame {
+                let header = CheckpointHeader {
+                    version: env!("CARGO_PKG_VERSION").into(),
+                    origin: opts.origin.clone(),
+                    source: source.clone(),
+                    frame,
+                    every,
+                    stats: stats.contents().to_string(),
+                    pvd: pvd.clone(),
+                    wall_seconds: wall_before + started.elapsed().as_secs_f64(),
+                    output_seconds: output_seconds + t0.elapsed().as_secs_f64(),
+                };
+                let bytes = encode(&header, &sim.snapshot()).map_err(|e| RunError::Io {
+                    path: checkpoint_path.display().to_string(),
+                    source: std::io::Error::other(e.to_string()),
+                })?;
+                write_atomic(&checkpoint_path, &bytes).map_err(io_err(&checkpoint_path))?;
+            }
+        }
         output_seconds += t0.elapsed().as_secs_f64();
         Ok(())
     };
 
-    write_frame(0, &sim, &mut stats)?;
+    if resume.is_none() {
+        write_frame(0, &sim, &mut stats)?;
+    }
     let mut outcome: Result<(), RunError> = Ok(());
-    let mut frames_done = 0;
-    for frame in 1..=last_frame {
+    let mut frames_done = first_frame - 1;
+    for frame in first_frame..=last_frame {
         let target = (frame as f64 * s.frame_dt).min(s.end_time);
         let stepped = sim.advance_to(target, |sim| {
             if let Some(b) = &bar {
