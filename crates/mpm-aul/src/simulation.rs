@@ -144,23 +144,27 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Simulation<T, D, K, L> {
     pub fn next_dt(&self) -> f64 {
         match self.time_step {
             TimeStepPolicy::Fixed(dt) => dt,
-            TimeStepPolicy::Cfl(cfl) => {
-                let h = self.params.h.to_f64();
-                let advective = cfl_time_step(
-                    self.params.h,
-                    T::lit(cfl),
-                    max_speed(&self.particles),
-                    self.wave_speed,
-                )
-                .to_f64();
-                // Explicit viscosity is stable for Δt ≤ h²/(2 d ν).
-                let nu: f64 = self.kinematic_viscosity.to_f64();
-                if nu > 0.0 {
-                    advective.min(cfl * h * h / (2.0 * D as f64 * nu))
-                } else {
-                    advective
-                }
-            }
+            TimeStepPolicy::Cfl(cfl) => self.cfl_dt(cfl),
+        }
+    }
+
+    /// The step the CFL rule with number `cfl` allows now: advective and elastic wave
+    /// speed, and explicit viscosity.
+    pub fn cfl_dt(&self, cfl: f64) -> f64 {
+        let h = self.params.h.to_f64();
+        let advective = cfl_time_step(
+            self.params.h,
+            T::lit(cfl),
+            max_speed(&self.particles),
+            self.wave_speed,
+        )
+        .to_f64();
+        // Explicit viscosity is stable for Δt ≤ h²/(2 d ν).
+        let nu: f64 = self.kinematic_viscosity.to_f64();
+        if nu > 0.0 {
+            advective.min(cfl * h * h / (2.0 * D as f64 * nu))
+        } else {
+            advective
         }
     }
 

@@ -60,7 +60,9 @@ use mpm_constitutive::{Material, StateMut};
 use mpm_grid::{BlockSparseGrid, Collider, GridLayout, BLOCK};
 use mpm_kernels::{Kernel, Stencil};
 use mpm_math::{determinant, try_inverse, Matrix, Real, Vector};
-use mpm_transfer::{particle_chunks, Particles, PhaseTimes, StepError, StepParams, PARTICLE_CHUNK};
+use mpm_transfer::{
+    advect_checked, particle_chunks, Particles, PhaseTimes, StepError, StepParams, PARTICLE_CHUNK,
+};
 use rayon::prelude::*;
 use std::marker::PhantomData;
 use std::time::Instant;
@@ -715,20 +717,12 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
             }
             let fsn_inv = try_inverse(fsn);
             *vp = vel;
-            let mut xn = *xp + vel * dt;
-            for a in 0..D {
-                xn[a] = xn[a].clamp(lo[a], hi[a]);
-            }
-            *xp = xn;
             if let Some(a) = ap {
                 *a = b;
             }
             let pid = id[p];
-            if !vel.iter().all(|c| c.is_finite_real()) {
-                return Some(StepError::NonFinite {
-                    particle: pid,
-                    quantity: "velocity",
-                });
+            if let Err(e) = advect_checked(pid, xp, &vel, dt, h, (&lo, &hi)) {
+                return Some(e);
             }
             let Some(fsn_inv) = fsn_inv else {
                 return Some(StepError::NonFinite {

@@ -12,7 +12,7 @@
 //!   `τ = B (J − 1) I`; the peers' `τ = B J (J − 1) I` differs by the factor `J`,
 //!   with the same wave speed `√(B/ρ)`).
 
-use crate::run::{build_simulation, RunError};
+use crate::run::{build_simulation, diagnose, RunError};
 use crate::sampling::unit_f64;
 use crate::scene::{GridKind, Kernel as KernelKind, Precision, Scene};
 use mpm_constitutive::{ElasticModel, FixedCorotated, JFluid, Material, StateNeeds};
@@ -567,7 +567,7 @@ fn time_scene<T: Real, const D: usize, K: Kernel, L: GridLayout>(
     threads: usize,
     pool: &rayon::ThreadPool,
 ) -> Result<Value, RunError> {
-    let (mut sim, _) = build_simulation::<T, D, K, L>(scene, origin)?;
+    let (mut sim, body_of) = build_simulation::<T, D, K, L>(scene, origin)?;
     let particles = sim.particles.len();
     let bytes = sim.bytes_per_particle();
     let mut steps_done = 0u64;
@@ -578,11 +578,16 @@ fn time_scene<T: Real, const D: usize, K: Kernel, L: GridLayout>(
                 sim.step(f64::INFINITY).map(|_| ())
             })
         })
-        .map_err(|e| RunError::Simulation {
-            origin: origin.to_string(),
-            detail: format!("benchmark step {steps_done}: {e}"),
-            last_frame: 0,
-            out: "(no output: benchmark)".into(),
+        .map_err(|e| {
+            let (detail, suggestion) =
+                diagnose(scene, &e, &body_of, sim.cfl_dt(scene.simulation.cfl));
+            RunError::Simulation {
+                origin: origin.to_string(),
+                detail: format!("benchmark step {steps_done}: {detail}"),
+                suggestion,
+                last_frame: 0,
+                out: "(no output: benchmark)".into(),
+            }
         })?;
     // Sanity after the timed steps: finite state, every particle inside the domain.
     let p = &sim.particles;

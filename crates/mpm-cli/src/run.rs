@@ -68,12 +68,14 @@ pub enum RunError {
         source: std::io::Error,
     },
     /// The simulation stopped.
-    #[error("{origin}: the simulation stopped at {detail}. Frames 0..={last_frame} in {out} are complete. Try a smaller `simulation.cfl` or `simulation.dt`, or check the material parameters.")]
+    #[error("{origin}: the simulation stopped at {detail}. Frames 0..={last_frame} in {out} are complete. {suggestion}")]
     Simulation {
         /// Scene origin.
         origin: String,
-        /// The step error.
+        /// The step error, with the particle's body.
         detail: String,
+        /// What to change, concretely for this failure.
+        suggestion: String,
         /// Last complete frame.
         last_frame: usize,
         /// Output directory.
@@ -717,9 +719,12 @@ fn run_typed<T: Real, const D: usize, K: Kernel, L: GridLayout>(
             }
         });
         if let Err(e) = stepped {
+            let (detail, suggestion) =
+                diagnose(scene, &e, &body_of, sim.cfl_dt(scene.simulation.cfl));
             outcome = Err(RunError::Simulation {
                 origin: opts.origin.clone(),
-                detail: e.to_string(),
+                detail,
+                suggestion,
                 last_frame: frames_done,
                 out: opts.out.display().to_string(),
             });
@@ -753,6 +758,62 @@ fn run_typed<T: Real, const D: usize, K: Kernel, L: GridLayout>(
         particles: sim.particles.len(),
         wall_seconds: wall,
     })
+}
+
+/// The failing step's message with the particle's body and material, and a concrete
+/// suggestion for that kind of failure (the keys to change and their current values).
+pub(crate) fn diagnose(
+    scene: &Scene,
+    e: &mpm_aul::SimulationError,
+    body_of: &[u16],
+    cfl_dt: f64,
+) -> (String, String) {
+    use mpm_transfer::StepError;
+    let s = &scene.simulation;
+    let body = body_of
+        .get(e.source.particle() as usize)
+        .map(|&b| b as usize);
+    let spec = body.and_then(|b| scene.body.get(b).map(|spec| (b, spec)));
+    let detail = match spec {
+        Some((b, spec)) => format!(
+            "{e} (body {b}, material \"{}\", {} particles per cell)",
+            spec.material, spec.particles_per_cell
+        ),
+        None => e.to_string(),
+    };
+    let step_size = match s.dt {
+        TimeStep::Auto => format!(
+            "lower `simulation.cfl` (now {}; try {})",
+            s.cfl,
+            s.cfl / 2.0
+        ),
+        TimeStep::Fixed(fixed) => format!(
+            "lower `simulation.dt` (now {fixed:e} s), or set `simulation.dt = \"auto\"` to follow the CFL condition (with `cfl = {}` it allows {cfl_dt:.3e} s at the current velocities)",
+            s.cfl
+        ),
+    };
+    let ppc = spec.map_or("`body.N.particles_per_cell`".to_string(), |(b, spec)| {
+        format!(
+            "`body.{b}.particles_per_cell` (now {}; try {})",
+            spec.particles_per_cell,
+            spec.particles_per_cell * 2
+        )
+    });
+    let suggestion = match &e.source {
+        StepError::NonFinite { .. } | StepError::TooFast { .. } => format!(
+            "The explicit step went unstable: {step_size}, or stiffen less abruptly (check `youngs_modulus` and the initial velocities)."
+        ),
+        StepError::LeftDomain { .. } => format!(
+            "A particle crossed the domain walls: {step_size}, or enlarge `simulation.domain_min`/`domain_max` so the walls are farther from the motion."
+        ),
+        StepError::Inverted { model, .. } => format!(
+            "The {model} model cannot take an inverted element (det F ≤ 0): {step_size}; use more particles per cell, {ppc}; or use `fixed-corotated`, which handles inversion."
+        ),
+        StepError::Collapsed { .. } => format!(
+            "A fluid particle's volume collapsed (J ≤ 0): {step_size}; use more particles per cell, {ppc}; or raise the `bulk_modulus` so the fluid resists compression."
+        ),
+    };
+    (detail, suggestion)
 }
 
 fn progress_bar(enabled: bool, frames: u64) -> Option<indicatif::ProgressBar> {

@@ -278,11 +278,17 @@ fn blow_up_stops_with_step_particle_and_quantity() {
     ]);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success(), "should have failed: {err}");
-    assert!(err.contains("step ") && err.contains("particle "), "{err}");
-    assert!(
-        err.contains("inverted") || err.contains("not finite"),
-        "{err}"
-    );
+    // 40 m/s × 0.01 s = 20 cells of h = 0.02 in the first step.
+    for part in [
+        "step 1 ",
+        "particle ",
+        "moved 20.",
+        "body 0, material \"jelly\"",
+        "lower `simulation.dt` (now 1e-2 s)",
+        "simulation.dt = \"auto\"",
+    ] {
+        assert!(err.contains(part), "no {part:?} in: {err}");
+    }
     let f0 = std::fs::read(out_dir.join("frames/frame_00000.ply")).unwrap();
     assert_eq!(mpm_cli::output::read_ply_positions(&f0).unwrap().len(), 400);
     let summary: serde_json::Value =
@@ -291,6 +297,39 @@ fn blow_up_stops_with_step_particle_and_quantity() {
     assert_eq!(summary["status"], "stopped");
     let stats = std::fs::read_to_string(out_dir.join("stats.csv")).unwrap();
     assert!(stats.lines().count() >= 2);
+}
+
+/// An inversion the model cannot take: the suggestion names the body's particles per
+/// cell and the inversion-safe model, and the CFL number to lower.
+#[test]
+fn inversion_suggests_particles_per_cell_and_a_safe_model() {
+    let dir = tempfile::tempdir().unwrap();
+    let text = SMALL_2D.replace("fixed-corotated", "neo-hookean");
+    let path = write_scene(dir.path(), "s.toml", &text);
+    let out_dir = dir.path().join("o");
+    let out = mpm(&[
+        "run",
+        path.to_str().unwrap(),
+        "--out",
+        out_dir.to_str().unwrap(),
+        "--set",
+        "simulation.cfl=1",
+        "--set",
+        "simulation.end_time=1",
+        "--set",
+        "material.0.youngs_modulus=1e6",
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "should have failed: {err}");
+    for part in [
+        "inverted element",
+        "neo-hookean",
+        "`simulation.cfl` (now 1; try 0.5)",
+        "`body.0.particles_per_cell` (now 4; try 8)",
+        "fixed-corotated",
+    ] {
+        assert!(err.contains(part), "no {part:?} in: {err}");
+    }
 }
 
 /// `mpm bench` on a tiny peer scene: one record per kernel with the peers' keys,

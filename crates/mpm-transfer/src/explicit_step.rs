@@ -5,7 +5,7 @@
 use crate::diagnostics::Totals;
 use crate::particles::Particles;
 use crate::scheme::{Gathered, Needs, TransferScheme};
-use crate::StepError;
+use crate::{advect_checked, StepError};
 use mpm_constitutive::{Material, StateMut};
 use mpm_grid::{optional_chunks, BlockSparseGrid, Collider, GatherView, GridLayout, BLOCK};
 use mpm_kernels::{Kernel, Stencil, MAX_NODES_PER_AXIS};
@@ -419,27 +419,12 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
             let g = gather(&view, xp, &needs);
             let up = scheme.update(vp, &g, gradient_form);
             *vp = up.velocity;
-            let mut xn = *xp + up.velocity * dt;
-            for a in 0..D {
-                // Last safeguard: the walls act one cell inside the domain.
-                xn[a] = xn[a].clamp(lo[a], hi[a]);
-            }
-            *xp = xn;
             if let (Some(a), Some(b)) = (ap, up.affine) {
                 *a = b;
             }
             let pid = id[p];
-            if !up.velocity.iter().all(|c| c.is_finite_real()) {
-                return Some(StepError::NonFinite {
-                    particle: pid,
-                    quantity: "velocity",
-                });
-            }
-            if !xn.iter().all(|c| c.is_finite_real()) {
-                return Some(StepError::NonFinite {
-                    particle: pid,
-                    quantity: "position",
-                });
+            if let Err(e) = advect_checked(pid, xp, &up.velocity, dt, params.h, (&lo, &hi)) {
+                return Some(e);
             }
             let model = &materials[material[p] as usize];
             let viscous_gradient = if viscous_fit {

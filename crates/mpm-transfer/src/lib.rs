@@ -24,6 +24,7 @@ pub use explicit_step::{particle_chunks, ExplicitStepper, PhaseTimes, StepParams
 pub use flip::Flip;
 pub use mls::Mls;
 use mpm_constitutive::StateFault;
+use mpm_math::{Real, Vector};
 pub use particles::Particles;
 pub use pic::Pic;
 pub use scheme::{Transfer, TransferScheme};
@@ -62,6 +63,80 @@ pub enum StepError {
         /// The volume ratio.
         j: f64,
     },
+    /// A particle moved more than a cell in one step: the explicit step is unstable
+    /// (or far too coarse) there, and its stencil no longer covers where it went.
+    #[error("particle {particle}: moved {cells:.2} cells in one step (more than 1), at speed {speed:e} m/s: the step is unstable")]
+    TooFast {
+        /// Particle id.
+        particle: u32,
+        /// Displacement in cells.
+        cells: f64,
+        /// Speed.
+        speed: f64,
+    },
+    /// A particle left the simulation domain (the walls did not hold it).
+    #[error("particle {particle}: left the domain along axis {axis} (position {position:e} m, domain [{min:e}, {max:e}])")]
+    LeftDomain {
+        /// Particle id.
+        particle: u32,
+        /// Axis (0 = x).
+        axis: usize,
+        /// The position it would have had.
+        position: f64,
+        /// Domain bounds on that axis.
+        min: f64,
+        /// See `min`.
+        max: f64,
+    },
+}
+
+/// Moves a particle to `x + v Δt` after checking the move: finite velocity and
+/// position, less than one cell (`h`) travelled, still inside `[lo, hi]`. On error
+/// the particle is left where it was.
+#[inline(always)]
+pub fn advect_checked<T: Real, const D: usize>(
+    particle: u32,
+    x: &mut Vector<T, D>,
+    v: &Vector<T, D>,
+    dt: T,
+    h: T,
+    (lo, hi): (&Vector<T, D>, &Vector<T, D>),
+) -> Result<(), StepError> {
+    if !v.iter().all(|c| c.is_finite_real()) {
+        return Err(StepError::NonFinite {
+            particle,
+            quantity: "velocity",
+        });
+    }
+    let step = v * dt;
+    let xn = *x + step;
+    if !xn.iter().all(|c| c.is_finite_real()) {
+        return Err(StepError::NonFinite {
+            particle,
+            quantity: "position",
+        });
+    }
+    let dist2 = step.norm_squared();
+    if dist2 > h * h {
+        return Err(StepError::TooFast {
+            particle,
+            cells: (dist2.sqrt() / h).to_f64(),
+            speed: v.norm().to_f64(),
+        });
+    }
+    for a in 0..D {
+        if xn[a] < lo[a] || xn[a] > hi[a] {
+            return Err(StepError::LeftDomain {
+                particle,
+                axis: a,
+                position: xn[a].to_f64(),
+                min: lo[a].to_f64(),
+                max: hi[a].to_f64(),
+            });
+        }
+    }
+    *x = xn;
+    Ok(())
 }
 
 impl StepError {
@@ -92,7 +167,9 @@ impl StepError {
         match self {
             StepError::NonFinite { particle, .. }
             | StepError::Inverted { particle, .. }
-            | StepError::Collapsed { particle, .. } => *particle,
+            | StepError::Collapsed { particle, .. }
+            | StepError::TooFast { particle, .. }
+            | StepError::LeftDomain { particle, .. } => *particle,
         }
     }
 }
