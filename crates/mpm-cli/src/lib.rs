@@ -6,6 +6,7 @@ pub mod bench;
 pub mod checkpoint;
 pub mod mesh;
 pub mod output;
+pub mod plot;
 pub mod render;
 pub mod run;
 pub mod sampling;

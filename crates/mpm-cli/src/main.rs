@@ -42,6 +42,22 @@ enum Command {
         #[arg(long, value_name = "N")]
         checkpoint_every: Option<usize>,
     },
+    /// Plot stats.csv of a run directory against time into DIR/plots/*.png: energy
+    /// (kinetic, elastic, potential, total), linear and angular momentum, reference
+    /// updates, largest speed, every probe, and `--columns` together in custom.png.
+    Plot {
+        /// Output directory of a run.
+        dir: PathBuf,
+        /// Columns of stats.csv to draw together in custom.png.
+        #[arg(long, value_delimiter = ',')]
+        columns: Vec<String>,
+        /// Image width in pixels.
+        #[arg(long, default_value_t = 900)]
+        width: u32,
+        /// Image height in pixels.
+        #[arg(long, default_value_t = 540)]
+        height: u32,
+    },
     /// Continue a run from DIR/checkpoint.bin (written by `mpm run --checkpoint-every`):
     /// the frames after the checkpoint are written again, bit-identical to a run that
     /// was never interrupted.
@@ -246,6 +262,36 @@ fn main() -> ExitCode {
             };
             match bench(args) {
                 Ok(()) => ExitCode::SUCCESS,
+                Err(e) => {
+                    eprintln!("error: {e}");
+                    ExitCode::FAILURE
+                }
+            }
+        }
+        Command::Plot {
+            dir,
+            columns,
+            width,
+            height,
+        } => {
+            if !(64..=8192).contains(&width) || !(64..=8192).contains(&height) {
+                eprintln!("error: --width and --height must be between 64 and 8192 pixels");
+                return ExitCode::FAILURE;
+            }
+            let opts = mpm_cli::plot::PlotOptions {
+                columns,
+                size: (width, height),
+            };
+            match mpm_cli::plot::plot_dir(&dir, &opts) {
+                Ok(r) => {
+                    println!(
+                        "plotted {} rows into {} PNG files in {}",
+                        r.rows,
+                        r.pngs.len(),
+                        dir.join("plots").display()
+                    );
+                    ExitCode::SUCCESS
+                }
                 Err(e) => {
                     eprintln!("error: {e}");
                     ExitCode::FAILURE

@@ -655,6 +655,77 @@ fn render_writes_pngs_and_gif() {
     );
 }
 
+/// `mpm plot DIR`: one PNG per chart, of the asked size, with curves (coloured
+/// pixels) and text/axes (dark pixels); bad columns and directories are named.
+#[test]
+fn plot_writes_charts_of_stats_columns() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = write_scene(dir.path(), "s.toml", SMALL_2D);
+    let out_dir = dir.path().join("out");
+    let run = mpm(&[
+        "run",
+        path.to_str().unwrap(),
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let out = mpm(&[
+        "plot",
+        out_dir.to_str().unwrap(),
+        "--columns",
+        "max_speed,kinetic_energy",
+        "--width",
+        "400",
+        "--height",
+        "300",
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    for name in [
+        "energy",
+        "momentum",
+        "angular_momentum",
+        "reference_updates",
+        "max_speed",
+        "custom",
+    ] {
+        let img = image::open(out_dir.join(format!("plots/{name}.png")))
+            .expect("PNG decodes")
+            .to_rgb8();
+        assert_eq!(img.dimensions(), (400, 300));
+        let (mut coloured, mut dark) = (0, 0);
+        for p in img.pixels() {
+            let [r, g, b] = p.0.map(i32::from);
+            let spread = r.max(g).max(b) - r.min(g).min(b);
+            coloured += usize::from(spread > 80);
+            dark += usize::from(r + g + b < 200);
+        }
+        assert!(coloured > 150, "{name}: {coloured} coloured pixels");
+        assert!(dark > 300, "{name}: {dark} dark pixels (text, axes)");
+    }
+    let out = mpm(&["plot", out_dir.to_str().unwrap(), "--columns", "nope"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        err.contains("no column `nope`") && err.contains("kinetic_energy"),
+        "{err}"
+    );
+    let out = mpm(&["plot", dir.path().to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        err.contains("stats.csv") && err.contains("mpm run"),
+        "{err}"
+    );
+}
+
 /// `mpm bench SCENE.toml` times the scene's own simulation and checks its state.
 #[test]
 fn bench_times_a_scene_file() {
