@@ -359,15 +359,17 @@ fn main() -> ExitCode {
                 // Scene-file spelling of the enums.
                 let name = |v: serde_json::Value| v.as_str().unwrap_or("?").to_string();
                 let json = |x: &dyn erased::Ser| name(x.to_json());
+                let memory = scene.memory_estimate();
                 println!(
-                    "{origin}: OK: {}-D {}, kernel {} on a {} grid, {} transfer, {} bodies, {particles} particles, end_time {} s",
+                    "{origin}: OK: {}-D {}, kernel {} on a {} grid, {} transfer, {} bodies, {particles} particles, end_time {} s, about {} of memory",
                     s.dim,
                     json(&s.precision),
                     json(&s.kernel),
                     json(&s.grid),
                     json(&s.transfer),
                     scene.body.len(),
-                    s.end_time
+                    s.end_time,
+                    mpm_cli::scene::human_bytes(memory.total_bytes())
                 );
                 ExitCode::SUCCESS
             }

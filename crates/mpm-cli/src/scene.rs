@@ -1030,7 +1030,111 @@ impl Check<'_> {
     }
 }
 
+/// Memory a run of a scene needs, estimated from the shapes' volumes before any
+/// particle is sampled (see [`Scene::memory_estimate`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MemoryEstimate {
+    /// Particles over all bodies.
+    pub particles: f64,
+    /// Bytes per particle: state arrays, the reordering copy and, for a Lagrangian
+    /// reference, the stored stencil weights and `K_p`.
+    pub bytes_per_particle: usize,
+    /// Grid bytes (active nodes around the particles, on every grid of the layout).
+    pub grid_bytes: f64,
+}
+
+impl MemoryEstimate {
+    /// Particles and grid together.
+    pub fn total_bytes(&self) -> f64 {
+        self.particles * self.bytes_per_particle as f64 + self.grid_bytes
+    }
+}
+
+/// Memory this process may use: `MPM_MEMORY_BYTES` when set (to plan for another
+/// machine, and for tests), else Linux's `MemAvailable`; `None` when unknown.
+pub fn available_memory() -> Option<f64> {
+    if let Ok(v) = std::env::var("MPM_MEMORY_BYTES") {
+        return v.trim().parse::<f64>().ok().filter(|b| *b > 0.0);
+    }
+    let info = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = info.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024.0)
+}
+
+/// `1.5 GB`-style size (decimal units).
+pub fn human_bytes(b: f64) -> String {
+    const UNITS: [&str; 6] = ["B", "kB", "MB", "GB", "TB", "PB"];
+    let mut v = b;
+    let mut u = 0;
+    while v >= 1000.0 && u + 1 < UNITS.len() {
+        v /= 1000.0;
+        u += 1;
+    }
+    if u == 0 {
+        format!("{v:.0} {}", UNITS[u])
+    } else {
+        format!("{v:.1} {}", UNITS[u])
+    }
+}
+
 impl Scene {
+    /// Memory estimate of a run: particles from each body's volume (`V·ppc/h^D`), the
+    /// arrays the scene stores per particle, frame output buffers, and about three grid
+    /// nodes per occupied cell on each grid of the layout. An estimate: it leaves out
+    /// the process's fixed few megabytes.
+    pub fn memory_estimate(&self) -> MemoryEstimate {
+        let s = &self.simulation;
+        let d = s.dim.clamp(2, 3);
+        let t = match s.precision {
+            Precision::F32 => 4,
+            Precision::F64 => 8,
+        };
+        let (mut particles, mut cells) = (0.0, 0.0);
+        for b in &self.body {
+            let ppc = b.particles_per_cell.max(1);
+            let n = sampling::estimated_particles(&b.shape, d, s.h, ppc).unwrap_or(0.0);
+            particles += n;
+            cells += n / ppc as f64;
+        }
+        // id, material; x, v; mass, volume; F; affine (APIC/MLS); hardening, J.
+        let affine = matches!(s.transfer, TransferKind::Apic | TransferKind::Mls);
+        let state = 4 + 2 + 2 * d * t + 2 * t + d * d * t + usize::from(affine) * d * d * t + 2 * t;
+        let per_axis: usize = match s.kernel {
+            Kernel::Linear => 2,
+            Kernel::Quadratic => 3,
+            Kernel::Cubic => 4,
+            Kernel::Compact => 2,
+        };
+        let grids = match s.grid {
+            GridKind::Single => 1,
+            GridKind::Dual => 2,
+        };
+        let lagrangian = match s.reference {
+            ReferenceKind::Eulerian => 0,
+            // X_p, Fˢⁿ, K_p, stored weights, lattice cell, δJ.
+            _ => d * t + 2 * d * d * t + per_axis.pow(d as u32) * grids * t + 4 * d + 8,
+        };
+        // Binning: the home cell, the sort key and the permutation; the reorder copies
+        // one array at a time (the largest is a matrix).
+        let binning = 4 * d + 4 + 4 + d * d * t;
+        // A frame's file is assembled in memory: PLY x, v, material; VTU about twice
+        // that (positions, velocity, ids, J, stress norm, hardening, encoding).
+        let ply = 6 * t + 2;
+        let output = ply + usize::from(self.output.format.contains(&OutputFormat::Vtu)) * 2 * ply;
+        let bytes_per_particle = state + binning + lagrangian + output;
+        // Mass, momentum, velocity, (A-UL) position moment, plus the block index.
+        let node_bytes = ((1 + 3 * d) * t + 8) as f64;
+        // Active blocks cover the occupied cells plus their halo: about 3 nodes per
+        // occupied cell (measured on the shipped scenes).
+        let grid_bytes = 3.0 * cells * grids as f64 * node_bytes;
+        MemoryEstimate {
+            particles,
+            bytes_per_particle,
+            grid_bytes,
+        }
+    }
+
     /// Sets the directory relative mesh paths are taken from (`None`: the working
     /// directory).
     pub fn set_base_dir(&mut self, dir: Option<&Path>) {
@@ -1384,6 +1488,44 @@ impl Scene {
                     format!("Move or shrink it so it lies inside the domain: {domain}"),
                 ));
             }
+        }
+
+        // Memory, estimated before any particle is sampled.
+        let estimate = self.memory_estimate();
+        if let Some(available) = available_memory() {
+            if estimate.total_bytes() > available {
+                return Err(c.err(
+                    "simulation.h",
+                    format!(
+                        "the scene needs about {} ({:.3e} particles × {} B, grid {}), more than the {} of memory available",
+                        human_bytes(estimate.total_bytes()),
+                        estimate.particles,
+                        estimate.bytes_per_particle,
+                        human_bytes(estimate.grid_bytes),
+                        human_bytes(available)
+                    ),
+                    format!(
+                        "Use a coarser simulation.h (now {}; doubling it in {dim}-D divides the particles by {}), fewer particles_per_cell, or smaller bodies",
+                        s.h,
+                        1usize << dim
+                    ),
+                ));
+            }
+        }
+        if estimate.particles > u32::MAX as f64 {
+            return Err(c.err(
+                "simulation.h",
+                format!(
+                    "the scene would have about {:.3e} particles, more than the 4,294,967,295 a run can index",
+                    estimate.particles
+                ),
+                format!("Use a coarser simulation.h (now {}), fewer particles_per_cell, or smaller bodies", s.h),
+            ));
+        }
+
+        // Only now sample (a little of) each body: the memory check above keeps an
+        // absurd resolution from allocating before it is refused.
+        for (i, b) in self.body.iter().enumerate() {
             if !sampling::has_samples(&b.shape, dim, s.h, b.particles_per_cell) {
                 return Err(c.err(
                     &format!("body.{i}"),

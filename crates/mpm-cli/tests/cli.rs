@@ -655,6 +655,48 @@ fn render_writes_pngs_and_gif() {
     );
 }
 
+/// A scene needing more memory than there is is refused before anything is sampled
+/// or allocated, with the estimate, the key and the fix.
+#[test]
+fn scene_larger_than_memory_is_refused_up_front() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = write_scene(dir.path(), "big.toml", SMALL_2D);
+    // 1e-7 m cells: ~1.6e13 particles, petabytes; must fail fast, not try.
+    let out = mpm(&[
+        "validate",
+        path.to_str().unwrap(),
+        "--set",
+        "simulation.h=1e-7",
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    for part in [
+        "big.toml",
+        "simulation.h",
+        "particles ×",
+        "more than the",
+        "Use a coarser simulation.h (now 0.0000001",
+    ] {
+        assert!(err.contains(part), "no {part:?} in: {err}");
+    }
+    // The same small scene against a pretend machine of 10 kB.
+    let out = Command::new(env!("CARGO_BIN_EXE_mpm"))
+        .args(["run", path.to_str().unwrap(), "--out"])
+        .arg(dir.path().join("o"))
+        .env("MPM_MEMORY_BYTES", "10000")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        err.contains("more than the 10.0 kB of memory available"),
+        "{err}"
+    );
+    assert!(!dir.path().join("o").exists(), "refused runs write nothing");
+    let ok = mpm(&["validate", path.to_str().unwrap()]);
+    assert!(String::from_utf8_lossy(&ok.stdout).contains("of memory"));
+}
+
 /// `mpm plot DIR`: one PNG per chart, of the asked size, with curves (coloured
 /// pixels) and text/axes (dark pixels); bad columns and directories are named.
 #[test]
