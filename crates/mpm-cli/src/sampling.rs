@@ -270,6 +270,10 @@ fn cell_range(lo: [f64; 3], hi: [f64; 3], dim: usize, h: f64) -> ([i64; 3], [i64
         c0[a] = (lo[a] / h).floor() as i64;
         c1[a] = ((hi[a] / h).ceil() as i64).max(c0[a]);
     }
+    // Empty along one axis: empty on all (the loops must not walk the others).
+    if (0..dim).any(|a| c1[a] == c0[a]) {
+        return (c0, c0);
+    }
     (c0, c1)
 }
 

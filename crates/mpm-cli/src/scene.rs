@@ -1179,6 +1179,26 @@ impl Scene {
                 ));
             }
         }
+        // Grid nodes are indexed by 32-bit integers, and a Lagrangian body's lattice
+        // sits in its own lane 2^22 cells along x: keep every coordinate within 2^20
+        // cells of the origin.
+        const MAX_CELLS: f64 = (1u64 << 20) as f64;
+        for a in 0..dim {
+            let reach = s.domain_min[a].abs().max(s.domain_max[a].abs()) / s.h;
+            if reach >= MAX_CELLS {
+                return Err(c.err(
+                    "simulation.h",
+                    format!(
+                        "axis {a}: the domain reaches {:.3e} cells of h = {} from the origin, more than the {} cells a grid index can address",
+                        reach, s.h, MAX_CELLS as u64
+                    ),
+                    format!(
+                        "Use a larger h (at least {:.3e}) or a domain closer to the origin",
+                        s.domain_min[a].abs().max(s.domain_max[a].abs()) / MAX_CELLS
+                    ),
+                ));
+            }
+        }
         c.positive("simulation.end_time", s.end_time)?;
         c.positive("simulation.frame_dt", s.frame_dt)?;
         if let TimeStep::Fixed(dt) = s.dt {
@@ -1403,6 +1423,13 @@ impl Scene {
                 Shape::Box { min, max } => {
                     c.vector(&k("shape.min"), min, dim, &per_axis)?;
                     c.vector(&k("shape.max"), max, dim, &per_axis)?;
+                    if let Some(a) = (0..dim).find(|&a| min[a] >= max[a]) {
+                        return Err(c.err(
+                            &k("shape.max"),
+                            format!("axis {a}: max = {} is not above min = {}", max[a], min[a]),
+                            "Give a box with min < max on every axis",
+                        ));
+                    }
                 }
                 Shape::Cylinder {
                     center,
@@ -2387,7 +2414,7 @@ normal = [0.0, 1.0]
         bad(
             FULL_3D,
             &["body.1.shape.min=[0.7, 0.1, 0.5]"],
-            &["body.1:", "empty", "min < max"],
+            &["body.1.shape.max", "axis 0", "not above min", "min < max"],
         );
         bad(
             FULL_3D,

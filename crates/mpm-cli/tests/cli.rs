@@ -661,12 +661,12 @@ fn render_writes_pngs_and_gif() {
 fn scene_larger_than_memory_is_refused_up_front() {
     let dir = tempfile::tempdir().unwrap();
     let path = write_scene(dir.path(), "big.toml", SMALL_2D);
-    // 1e-7 m cells: ~1.6e13 particles, petabytes; must fail fast, not try.
+    // 1e-5 m cells: ~1.6e9 particles, ~150 GB; must fail fast, not try.
     let out = mpm(&[
         "validate",
         path.to_str().unwrap(),
         "--set",
-        "simulation.h=1e-7",
+        "simulation.h=1e-5",
     ]);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success());
@@ -675,7 +675,7 @@ fn scene_larger_than_memory_is_refused_up_front() {
         "simulation.h",
         "particles ×",
         "more than the",
-        "Use a coarser simulation.h (now 0.0000001",
+        "Use a coarser simulation.h (now 0.00001",
     ] {
         assert!(err.contains(part), "no {part:?} in: {err}");
     }
@@ -693,6 +693,18 @@ fn scene_larger_than_memory_is_refused_up_front() {
         "{err}"
     );
     assert!(!dir.path().join("o").exists(), "refused runs write nothing");
+    // Beyond what a grid index can address: refused by that limit instead.
+    let out = mpm(&[
+        "validate",
+        path.to_str().unwrap(),
+        "--set",
+        "simulation.h=1e-12",
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("simulation.h") && err.contains("grid index"),
+        "{err}"
+    );
     let ok = mpm(&["validate", path.to_str().unwrap()]);
     assert!(String::from_utf8_lossy(&ok.stdout).contains("of memory"));
 }
