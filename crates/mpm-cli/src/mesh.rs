@@ -48,6 +48,8 @@ pub enum MeshError {
         count: usize,
         example: ([f64; 3], [f64; 3]),
     },
+    #[error("{count} pair{} of triangles cross each other (an edge pierces a triangle at {}): the surface intersects itself, so its inside is ambiguous", if *.count == 1 { "" } else { "s" }, fmt_point(*.at))]
+    SelfIntersecting { count: usize, at: [f64; 3] },
 }
 
 impl MeshError {
@@ -67,6 +69,10 @@ impl MeshError {
             MeshError::Open { .. } | MeshError::NonManifold { .. } => {
                 "Give a closed (watertight) mesh: every edge must be shared by exactly two \
                  triangles (close the holes, e.g. with a mesh repair tool)"
+            }
+            MeshError::SelfIntersecting { .. } => {
+                "Repair the mesh so its surface does not cross itself (e.g. a boolean union \
+                 of the overlapping parts in a mesh tool)"
             }
             MeshError::Inconsistent { .. } => {
                 "Orient every triangle the same way (all normals outward), e.g. with a mesh \
@@ -151,6 +157,45 @@ fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
         a[0] * b[1] - a[1] * b[0],
     ]
 }
+
+/// Where an edge of one triangle pierces the other's interior, if one does.
+fn triangles_cross(a: [[f64; 3]; 3], b: [[f64; 3]; 3]) -> Option<[f64; 3]> {
+    for (tri, other) in [(a, b), (b, a)] {
+        for k in 0..3 {
+            if let Some(p) = segment_pierces(other[k], other[(k + 1) % 3], tri) {
+                return Some(p);
+            }
+        }
+    }
+    None
+}
+
+/// Möller–Trumbore: the point where segment `p→q` crosses the plane of triangle `t`
+/// inside the triangle, edges included (a crossing exactly through an edge is still a
+/// crossing: two meshes mirror-symmetric about a plane meet only on edges), with
+/// the segment parameter strictly inside (0, 1) by a relative 1e-9, so a vertex that
+/// merely rests on the other surface does not count.
+fn segment_pierces(p: [f64; 3], q: [f64; 3], t: [[f64; 3]; 3]) -> Option<[f64; 3]> {
+    const EPS: f64 = 1e-9;
+    let d = sub(q, p);
+    let e1 = sub(t[1], t[0]);
+    let e2 = sub(t[2], t[0]);
+    let h = cross(d, e2);
+    let det = dot(e1, h);
+    // Parallel (or degenerate): no transversal crossing.
+    if det.abs() <= EPS * norm(d) * norm(e1) * norm(e2) {
+        return None;
+    }
+    let inv = 1.0 / det;
+    let s = sub(p, t[0]);
+    let u = dot(s, h) * inv;
+    let qv = cross(s, e1);
+    let v = dot(d, qv) * inv;
+    let w = dot(e2, qv) * inv;
+    let inside = u >= -EPS && v >= -EPS && u + v <= 1.0 + EPS && w > EPS && w < 1.0 - EPS;
+    inside.then(|| [p[0] + w * d[0], p[1] + w * d[1], p[2] + w * d[2]])
+}
+
 fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
@@ -233,7 +278,7 @@ impl TriMesh {
 
     /// Checks that the mesh bounds a solid: every undirected edge is used by exactly
     /// two triangles, walked in opposite directions (a closed, consistently oriented
-    /// 2-manifold-with-pinches). Self-intersections are not detected.
+    /// 2-manifold-with-pinches). Self-intersections: [`Self::check_self_intersection`].
     pub fn check_closed(&self) -> Result<(), MeshError> {
         if self.triangles.is_empty() {
             return Err(MeshError::Empty);
@@ -272,6 +317,109 @@ impl TriMesh {
             return Err(MeshError::Inconsistent { count, example });
         }
         Ok(())
+    }
+
+    /// Checks that no two triangles without a common vertex cross: an edge of one
+    /// piercing the interior of the other (Möller–Trumbore with the segment parameter
+    /// in (0, 1)). Candidate pairs come from a uniform hash grid of triangle bounding
+    /// boxes (cell = mean edge length), so the cost is about linear in the triangles.
+    /// Touching at a point and coplanar overlaps are not reported; triangles sharing a
+    /// vertex are skipped (adjacent triangles meet by design).
+    pub fn check_self_intersection(&self) -> Result<(), MeshError> {
+        let n = self.triangles.len();
+        if n < 4 {
+            return Ok(());
+        }
+        let boxes: Vec<([f64; 3], [f64; 3])> = self
+            .triangles
+            .iter()
+            .map(|t| {
+                let c = self.corners(t);
+                let mut lo = c[0];
+                let mut hi = c[0];
+                for p in &c[1..] {
+                    for a in 0..3 {
+                        lo[a] = lo[a].min(p[a]);
+                        hi[a] = hi[a].max(p[a]);
+                    }
+                }
+                (lo, hi)
+            })
+            .collect();
+        let mean_edge = self
+            .triangles
+            .iter()
+            .map(|t| {
+                let c = self.corners(t);
+                (0..3).map(|k| norm(sub(c[(k + 1) % 3], c[k]))).sum::<f64>() / 3.0
+            })
+            .sum::<f64>()
+            / n as f64;
+        let cell = mean_edge.max(f64::MIN_POSITIVE);
+        let key = |p: f64| (p / cell).floor() as i64;
+        let mut grid: HashMap<[i64; 3], Vec<u32>> = HashMap::new();
+        for (i, (lo, hi)) in boxes.iter().enumerate() {
+            let (k0, k1) = (lo.map(key), hi.map(key));
+            // A triangle much larger than the cells is put in every cell it spans; cap
+            // the span so one huge triangle cannot blow up the table.
+            let span: i64 = (0..3).map(|a| k1[a] - k0[a] + 1).product();
+            if span > 4096 {
+                grid.entry([i64::MIN; 3]).or_default().push(i as u32);
+                continue;
+            }
+            for x in k0[0]..=k1[0] {
+                for y in k0[1]..=k1[1] {
+                    for z in k0[2]..=k1[2] {
+                        grid.entry([x, y, z]).or_default().push(i as u32);
+                    }
+                }
+            }
+        }
+        let big: Vec<u32> = grid.get(&[i64::MIN; 3]).cloned().unwrap_or_default();
+        let overlap = |a: usize, b: usize| {
+            (0..3).all(|k| boxes[a].0[k] <= boxes[b].1[k] && boxes[b].0[k] <= boxes[a].1[k])
+        };
+        let mut seen: std::collections::HashSet<(u32, u32)> = std::collections::HashSet::new();
+        let mut count = 0usize;
+        let mut first: Option<(u32, u32, [f64; 3])> = None;
+        let mut test = |a: u32, b: u32| {
+            let (a, b) = (a.min(b), a.max(b));
+            if a == b || !overlap(a as usize, b as usize) || !seen.insert((a, b)) {
+                return;
+            }
+            let (ta, tb) = (self.triangles[a as usize], self.triangles[b as usize]);
+            if ta.iter().any(|v| tb.contains(v)) {
+                return;
+            }
+            if let Some(at) = triangles_cross(self.corners(&ta), self.corners(&tb)) {
+                count += 1;
+                if first.is_none_or(|(fa, fb, _)| (a, b) < (fa, fb)) {
+                    first = Some((a, b, at));
+                }
+            }
+        };
+        for (k, list) in &grid {
+            if *k == [i64::MIN; 3] {
+                continue;
+            }
+            for (i, &a) in list.iter().enumerate() {
+                for &b in &list[i + 1..] {
+                    test(a, b);
+                }
+                for &b in &big {
+                    test(a, b);
+                }
+            }
+        }
+        for (i, &a) in big.iter().enumerate() {
+            for &b in &big[i + 1..] {
+                test(a, b);
+            }
+        }
+        match first {
+            Some((_, _, at)) => Err(MeshError::SelfIntersecting { count, at }),
+            None => Ok(()),
+        }
     }
 
     /// `x ↦ R (s x) + t` applied to every vertex ([`rotation_matrix`] for `R`).
@@ -419,6 +567,7 @@ impl MeshCache {
         }
         let mesh = load(path)?;
         mesh.check_closed()?;
+        mesh.check_self_intersection()?;
         let solid = Arc::new(SolidMesh::new(
             mesh.transformed(scale, rotate_deg, translate),
         ));
@@ -962,6 +1111,73 @@ mod tests {
         let s = SolidMesh::new(flipped);
         assert!((s.winding_number([0.1, 0.1, 0.1]) + 1.0).abs() < 1e-12);
         assert!(s.contains([0.1, 0.1, 0.1]));
+    }
+
+    fn merged(a: &TriMesh, b: &TriMesh) -> TriMesh {
+        let shift = a.vertices.len() as u32;
+        let mut m = a.clone();
+        m.vertices.extend_from_slice(&b.vertices);
+        m.triangles
+            .extend(b.triangles.iter().map(|t| t.map(|i| i + shift)));
+        m
+    }
+
+    fn sphere_at(c: [f64; 3], r: f64) -> TriMesh {
+        let mut s = radial_icosphere(2, |_| r);
+        for v in &mut s.vertices {
+            for a in 0..3 {
+                v[a] += c[a];
+            }
+        }
+        s
+    }
+
+    #[test]
+    fn self_intersections_are_found_and_clean_meshes_pass() {
+        // Clean: the generated torus, an icosphere, two disjoint spheres, and the
+        // shipped meshes.
+        torus(1.0, 0.3, 24, 12).check_self_intersection().unwrap();
+        sphere_at([0.0; 3], 1.0).check_self_intersection().unwrap();
+        let apart = merged(&sphere_at([0.0; 3], 1.0), &sphere_at([2.5, 0.0, 0.0], 1.0));
+        apart.check_closed().unwrap();
+        apart.check_self_intersection().unwrap();
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/meshes");
+        for f in ["torus.obj", "bunny_blob.stl"] {
+            load(&dir.join(f))
+                .unwrap()
+                .check_self_intersection()
+                .unwrap();
+        }
+
+        // Two overlapping spheres, mirror images about x = 0.5, so their facets meet
+        // only along edges: still found.
+        let mirrored = merged(&sphere_at([0.0; 3], 1.0), &sphere_at([1.0, 0.0, 0.0], 1.0));
+        assert!(mirrored.check_self_intersection().is_err());
+        // In general position: closed and consistently oriented, yet the surfaces
+        // cross near the circle x = 0.5, y² + z² = 0.75 (radius 0.866).
+        let overlap = merged(
+            &sphere_at([0.0; 3], 1.0),
+            &sphere_at([1.0, 0.013, 0.021], 1.0),
+        );
+        overlap.check_closed().unwrap();
+        match overlap.check_self_intersection() {
+            Err(MeshError::SelfIntersecting { count, at }) => {
+                assert!(count >= 8, "{count} crossing pairs");
+                // On the intersection circle, up to the facets' distance from the
+                // spheres (icosphere level 2: chord sag ≈ 5 % of r).
+                assert!((at[0] - 0.5).abs() < 0.1, "{at:?}");
+                let rho = (at[1] * at[1] + at[2] * at[2]).sqrt();
+                assert!((rho - 0.75f64.sqrt()).abs() < 0.1, "{at:?}");
+            }
+            other => panic!("expected a self-intersection, got {other:?}"),
+        }
+
+        // A spindle torus (minor radius > major) passes through its own axis.
+        let spindle = torus(0.5, 0.8, 24, 16);
+        spindle.check_closed().unwrap();
+        let e = spindle.check_self_intersection().unwrap_err();
+        assert!(e.to_string().contains("intersects itself"), "{e}");
+        assert!(e.fix().contains("does not cross itself"));
     }
 
     #[test]

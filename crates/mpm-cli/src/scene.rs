@@ -2140,6 +2140,9 @@ normal = [0.0, 1.0]
         let mut flipped = good.clone();
         flipped.triangles[7].swap(0, 1);
         std::fs::write(meshes.join("flipped.obj"), flipped.to_obj("flipped")).unwrap();
+        // Minor radius above the major one: closed, but through its own axis.
+        let spindle = torus(0.5, 0.8, 16, 8);
+        std::fs::write(meshes.join("spindle.obj"), spindle.to_obj("spindle")).unwrap();
         let text = FULL_3D.replace(
             "shape = { type = \"sphere\", center = [0.3, 0.3, 0.3], radius = 0.1 }",
             "shape = { type = \"mesh\", path = \"meshes/torus.obj\", scale = 0.1, translate = [0.3, 0.5, 0.3], rotate = [30, 0, 0] }",
@@ -2226,6 +2229,15 @@ normal = [0.0, 1.0]
                 "3 boundary edges",
                 "not closed",
                 "watertight",
+            ],
+        );
+        err(
+            &["body.0.shape.path=meshes/spindle.obj"],
+            &[
+                "body.0.shape.path",
+                "spindle.obj",
+                "intersects itself",
+                "does not cross itself",
             ],
         );
         err(
