@@ -11,3 +11,4 @@ pub mod render;
 pub mod run;
 pub mod sampling;
 pub mod scene;
+pub mod study;

@@ -42,6 +42,37 @@ enum Command {
         #[arg(long, value_name = "N")]
         checkpoint_every: Option<usize>,
     },
+    /// Measure the speed–accuracy trade: run every combination of the --vary values,
+    /// compare each with a reference run (displacement and velocity RMS, A-ULMPM
+    /// eq. 36; energy history; each probe) and write study.csv, pareto.png and
+    /// study.md naming the cheapest configuration within --budget.
+    Study {
+        /// Scene file.
+        scene: PathBuf,
+        /// KEY=V1,V2,... (any scene key; repeatable: the cross product is run).
+        #[arg(long, value_name = "KEY=V1,V2,...", required = true)]
+        vary: Vec<String>,
+        /// KEY=VALUE overrides of the reference run [default: the finest
+        /// configuration: most particles, then most steps].
+        #[arg(long = "reference", value_name = "KEY=VALUE")]
+        reference: Vec<String>,
+        /// Error budget on --metric: name the cheapest configuration within it.
+        #[arg(long)]
+        budget: Option<f64>,
+        /// Metric for the budget and the plot: displacement_rms, velocity_rms,
+        /// energy_rms or probe_<name>_rms.
+        #[arg(long, default_value = "displacement_rms")]
+        metric: String,
+        /// Override a scene key in every run.
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        set: Vec<String>,
+        /// Output directory [default: out/<scene name>-study].
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Worker threads [default: all cores].
+        #[arg(long)]
+        threads: Option<usize>,
+    },
     /// Plot stats.csv of a run directory against time into DIR/plots/*.png: energy
     /// (kinetic, elastic, potential, total), linear and angular momentum, reference
     /// updates, largest speed, every probe, and `--columns` together in custom.png.
@@ -262,6 +293,92 @@ fn main() -> ExitCode {
             };
             match bench(args) {
                 Ok(()) => ExitCode::SUCCESS,
+                Err(e) => {
+                    eprintln!("error: {e}");
+                    ExitCode::FAILURE
+                }
+            }
+        }
+        Command::Study {
+            scene,
+            vary,
+            reference,
+            budget,
+            metric,
+            set,
+            out,
+            threads,
+        } => {
+            let pool = match thread_pool(threads) {
+                Ok(p) => p,
+                Err(e) => {
+                    eprintln!("error: {e}");
+                    return ExitCode::FAILURE;
+                }
+            };
+            let vary = match vary
+                .iter()
+                .map(|v| mpm_cli::study::parse_vary(v))
+                .collect::<Result<Vec<_>, _>>()
+            {
+                Ok(v) => v,
+                Err(e) => {
+                    eprintln!("error: {e}");
+                    return ExitCode::FAILURE;
+                }
+            };
+            if let Some(b) = budget {
+                if !(b.is_finite() && b > 0.0) {
+                    eprintln!("error: --budget must be a positive number (an error on --metric)");
+                    return ExitCode::FAILURE;
+                }
+            }
+            let stem = scene
+                .file_stem()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_else(|| "scene".into());
+            let out = out.unwrap_or_else(|| PathBuf::from("out").join(format!("{stem}-study")));
+            let opts = mpm_cli::study::StudyOptions {
+                scene,
+                base: set,
+                vary,
+                reference,
+                budget,
+                metric: metric.clone(),
+                out: out.clone(),
+                threads: pool.current_num_threads(),
+            };
+            let result = pool.install(|| {
+                mpm_cli::study::run_study(&opts, |row, i, n| {
+                    let err = row
+                        .error(&metric)
+                        .map_or(String::new(), |e| format!(", {metric} {e:.3e}"));
+                    println!(
+                        "[{i}/{n}] {} {}: {} ({} particles, {:.2} s{err})",
+                        row.name,
+                        row.values.join(" "),
+                        row.status.lines().next().unwrap_or(""),
+                        row.particles,
+                        row.wall_seconds
+                    );
+                })
+            });
+            match result {
+                Ok(r) => {
+                    if let Some(i) = r.chosen {
+                        println!(
+                            "cheapest within the budget: {} ({})",
+                            r.rows[i].name,
+                            r.rows[i].values.join(" ")
+                        );
+                    }
+                    println!(
+                        "wrote {0}/study.csv, {0}/study.md, {0}/pareto.png (reference: {1})",
+                        out.display(),
+                        r.rows[r.reference].name
+                    );
+                    ExitCode::SUCCESS
+                }
                 Err(e) => {
                     eprintln!("error: {e}");
                     ExitCode::FAILURE

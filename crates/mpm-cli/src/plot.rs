@@ -159,7 +159,7 @@ const STANDARD: &[&str] = &[
     "potential_energy",
 ];
 
-fn register_font() {
+pub(crate) fn register_font() {
     static ONCE: std::sync::Once = std::sync::Once::new();
     ONCE.call_once(|| {
         // DejaVu Sans is a valid TrueType font: registration cannot fail, and if it

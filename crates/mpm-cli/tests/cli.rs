@@ -709,6 +709,97 @@ fn scene_larger_than_memory_is_refused_up_front() {
     assert!(String::from_utf8_lossy(&ok.stdout).contains("of memory"));
 }
 
+/// A 2×2 study (kernel × h): four rows, the finest run is the reference with zero
+/// error, the others have positive finite errors, refining h at a fixed kernel
+/// lowers the error, and the summary and plot exist. A blown-up configuration is a
+/// row with its reason, not a failed study.
+#[test]
+fn study_runs_the_cross_product_and_measures_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = write_scene(dir.path(), "s.toml", SMALL_2D);
+    let out_dir = dir.path().join("study");
+    let out = mpm(&[
+        "study",
+        path.to_str().unwrap(),
+        "--vary",
+        "simulation.kernel=quadratic,compact",
+        "--vary",
+        "simulation.h=0.04,0.02",
+        "--budget",
+        "1",
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let csv = std::fs::read_to_string(out_dir.join("study.csv")).unwrap();
+    let rows: Vec<Vec<&str>> = csv
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').collect())
+        .collect();
+    assert_eq!(rows.len(), 4, "{csv}");
+    let header: Vec<&str> = csv.lines().next().unwrap().split(',').collect();
+    let col = |name: &str| header.iter().position(|h| *h == name).unwrap();
+    let disp = |r: &Vec<&str>| r[col("displacement_rms")].parse::<f64>().unwrap();
+    // Finest: h = 0.02 (400 particles), first such row: quadratic.
+    let reference: Vec<&Vec<&str>> = rows
+        .iter()
+        .filter(|r| r[col("reference")] == "true")
+        .collect();
+    assert_eq!(reference.len(), 1);
+    assert_eq!((reference[0][1], reference[0][2]), ("quadratic", "0.02"));
+    assert_eq!(disp(reference[0]), 0.0);
+    assert_eq!(reference[0][col("particles")], "400");
+    for r in rows.iter().filter(|r| r[col("reference")] == "false") {
+        let e = disp(r);
+        // The block falls 0.1 s at up to 1 m/s: errors are a fraction of its travel.
+        assert!(e > 0.0 && e < 0.05, "{r:?}");
+        assert!(r[col("velocity_rms")].parse::<f64>().unwrap() > 0.0);
+    }
+    let compact = |h: &str| {
+        rows.iter()
+            .find(|r| r[1] == "compact" && r[2] == h)
+            .unwrap()
+    };
+    assert!(disp(compact("0.04")) > disp(compact("0.02")));
+    assert!(text.contains("cheapest within the budget"), "{text}");
+    let md = std::fs::read_to_string(out_dir.join("study.md")).unwrap();
+    assert!(md.contains("| run_000 | quadratic | 0.04 | ok |"), "{md}");
+    assert!(md.contains("Cheapest within the budget"), "{md}");
+    let png = image::open(out_dir.join("pareto.png")).unwrap();
+    assert_eq!((png.width(), png.height()), (900, 600));
+
+    // One stable and one blown-up time step.
+    let out = mpm(&[
+        "study",
+        path.to_str().unwrap(),
+        "--vary",
+        "simulation.dt=2e-4,0.05",
+        "--out",
+        dir.path().join("study2").to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let csv = std::fs::read_to_string(dir.path().join("study2/study.csv")).unwrap();
+    let failed = csv.lines().find(|l| l.contains(",0.05,")).unwrap();
+    assert!(
+        failed.contains("failed:") && failed.contains("unstable"),
+        "{failed}"
+    );
+
+    let out = mpm(&["study", path.to_str().unwrap(), "--vary", "simulation.h"]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("KEY=V1,V2"));
+}
+
 /// `mpm plot DIR`: one PNG per chart, of the asked size, with curves (coloured
 /// pixels) and text/axes (dark pixels); bad columns and directories are named.
 #[test]
