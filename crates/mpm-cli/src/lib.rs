@@ -12,3 +12,4 @@ pub mod run;
 pub mod sampling;
 pub mod scene;
 pub mod study;
+pub mod verify;

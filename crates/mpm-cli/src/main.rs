@@ -42,6 +42,24 @@ enum Command {
         #[arg(long, value_name = "N")]
         checkpoint_every: Option<usize>,
     },
+    /// Reproduce the papers' evidence: momentum and angular momentum conservation,
+    /// numerical diffusion and speed of compact vs quadratic (CK-MPM), convergence of
+    /// TL and A-UL (A-ULMPM); each with our number, the paper's and PASS/FAIL, in
+    /// OUT/verify.md with plots. Exit status 1 if a check fails.
+    Verify {
+        /// Reduced sizes: under 3 minutes on 2 cores.
+        #[arg(long)]
+        quick: bool,
+        /// Only these checks (comma-separated names or prefixes; see the report).
+        #[arg(long, value_delimiter = ',')]
+        only: Vec<String>,
+        /// Output directory [default: out/verify or out/verify-quick].
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Worker threads [default: all cores].
+        #[arg(long)]
+        threads: Option<usize>,
+    },
     /// Measure the speed–accuracy trade: run every combination of the --vary values,
     /// compare each with a reference run (displacement and velocity RMS, A-ULMPM
     /// eq. 36; energy history; each probe) and write study.csv, pareto.png and
@@ -293,6 +311,63 @@ fn main() -> ExitCode {
             };
             match bench(args) {
                 Ok(()) => ExitCode::SUCCESS,
+                Err(e) => {
+                    eprintln!("error: {e}");
+                    ExitCode::FAILURE
+                }
+            }
+        }
+        Command::Verify {
+            quick,
+            only,
+            out,
+            threads,
+        } => {
+            let pool = match thread_pool(threads) {
+                Ok(p) => p,
+                Err(e) => {
+                    eprintln!("error: {e}");
+                    return ExitCode::FAILURE;
+                }
+            };
+            let out = out.unwrap_or_else(|| mpm_cli::verify::default_out(quick));
+            if !quick {
+                println!("mpm verify at the papers' sizes: about an hour on 2 cores (use --quick for a 3-minute version)");
+            }
+            let opts = mpm_cli::verify::VerifyOptions {
+                quick,
+                out: out.clone(),
+                threads: pool.current_num_threads(),
+                only,
+            };
+            let result = pool.install(|| {
+                mpm_cli::verify::run_verify(&opts, |r| {
+                    println!(
+                        "{:<34} ours {:<11.3e} paper {:<22} threshold {:<8} {}  ({:.1} s)",
+                        r.name,
+                        r.ours,
+                        r.paper.as_deref().unwrap_or("-"),
+                        r.threshold,
+                        if r.pass { "PASS" } else { "FAIL" },
+                        r.seconds
+                    );
+                })
+            });
+            match result {
+                Ok(results) => {
+                    let failed = results.iter().filter(|r| !r.pass).count();
+                    println!(
+                        "{} of {} checks pass; report {}",
+                        results.len() - failed,
+                        results.len(),
+                        out.join("verify.md").display()
+                    );
+                    if failed == 0 {
+                        ExitCode::SUCCESS
+                    } else {
+                        ExitCode::FAILURE
+                    }
+                }
                 Err(e) => {
                     eprintln!("error: {e}");
                     ExitCode::FAILURE

@@ -209,15 +209,15 @@ fn run_one(
 }
 
 /// A run's outputs as the comparison needs them.
-struct RunData {
+pub(crate) struct RunData {
     /// Initial positions, by particle id.
-    start: Vec<[f64; 3]>,
+    pub(crate) start: Vec<[f64; 3]>,
     /// Displacement at the last frame.
     displacement: Vec<[f64; 3]>,
     /// Velocity at the last frame.
     velocity: Vec<[f64; 3]>,
     /// The stats table.
-    stats: StatsTable,
+    pub(crate) stats: StatsTable,
 }
 
 fn last_frame(dir: &Path) -> Result<PathBuf, String> {
@@ -230,7 +230,7 @@ fn last_frame(dir: &Path) -> Result<PathBuf, String> {
     frames.pop().ok_or_else(|| "no PLY frames".to_string())
 }
 
-fn load_run(dir: &Path) -> Result<RunData, String> {
+pub(crate) fn load_run(dir: &Path) -> Result<RunData, String> {
     let names = ["x", "y", "z", "vx", "vy", "vz"];
     let read = |p: &Path| -> Result<Vec<Vec<f64>>, String> {
         let bytes = std::fs::read(p).map_err(|e| format!("{}: {e}", p.display()))?;
@@ -334,7 +334,7 @@ fn mechanical(stats: &StatsTable) -> Option<Vec<f64>> {
 }
 
 /// The metrics of `run` against `reference`.
-fn compare(run: &RunData, reference: &RunData) -> Vec<(String, f64)> {
+pub(crate) fn compare(run: &RunData, reference: &RunData) -> Vec<(String, f64)> {
     let mut out = Vec::new();
     // Cell of the search grid: the reference's mean particle spacing, from its
     // bounding box volume per particle (in the dimensions that vary).

@@ -800,6 +800,52 @@ fn study_runs_the_cross_product_and_measures_errors() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("KEY=V1,V2"));
 }
 
+/// `mpm verify --quick` on the conservation and convergence checks: each line has our
+/// number, the paper's and PASS; the report has the table; the numbers meet the
+/// thresholds the code states (round-off momentum, second-order convergence).
+#[test]
+fn verify_quick_conservation_and_convergence() {
+    let dir = tempfile::tempdir().unwrap();
+    let out_dir = dir.path().join("verify");
+    let out = mpm(&[
+        "verify",
+        "--quick",
+        "--only",
+        "momentum_two_spheres,angular_momentum,convergence_plate",
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let md = std::fs::read_to_string(out_dir.join("verify.md")).unwrap();
+    assert!(md.contains("4 of 4 checks pass"), "{md}");
+    let ours = |name: &str| -> f64 {
+        let row = md
+            .lines()
+            .find(|l| l.starts_with(&format!("| {name} |")))
+            .unwrap();
+        row.split('|').nth(4).unwrap().trim().parse().unwrap()
+    };
+    assert!(ours("momentum_two_spheres") <= 1e-10);
+    assert!(ours("angular_momentum_spinning_rod") <= 1e-9);
+    assert!(ours("convergence_plate_tl") >= 1.5);
+    assert!(ours("convergence_plate_a_ul") >= 1.5);
+    assert!(
+        text.contains("paper 1.06e-5") && text.contains("PASS"),
+        "{text}"
+    );
+    let png = image::open(out_dir.join("convergence_plate.png")).unwrap();
+    assert_eq!(png.width(), 900);
+
+    let out = mpm(&["verify", "--quick", "--only", "nonsense"]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("no such check"));
+}
+
 /// `mpm plot DIR`: one PNG per chart, of the asked size, with curves (coloured
 /// pixels) and text/axes (dark pixels); bad columns and directories are named.
 #[test]

@@ -1,0 +1,515 @@
+//! `mpm verify [--quick]`: the papers' evidence, reproduced by named checks. Each
+//! prints our number beside the paper's and PASS/FAIL against a threshold stated here,
+//! and `verify.md` collects them with PNG plots.
+//!
+//! Checks (the sizes are `--quick`'s; the full run uses the papers' sizes):
+//! - CK-MPM §6.1, two colliding spheres: L∞ drift of the total linear momentum over one
+//!   sphere's momentum (paper 1.06e-5). APIC on any kernel conserves momentum exactly,
+//!   so in f64 ours must be round-off: threshold 1e-10.
+//! - CK-MPM §6.1, spinning rod: relative drift of the angular momentum, affine part
+//!   included (paper 6e-3 over 5 s). Exact for APIC in exact arithmetic: threshold
+//!   1e-9 in f64 (round-off of sums over ~10⁴ particles and thousands of steps).
+//! - CK-MPM §6.2 / Fig. 14, numerical diffusion: a jelly cube set spinning, free in
+//!   mid-air and standing on a sticky floor; the vibration energy (kinetic + elastic)
+//!   kept at the end, compact over quadratic. The paper shows compact keeps more:
+//!   threshold ratio ≥ 1.
+//! - CK-MPM Table 3, speed: compact/dual over quadratic throughput at equal dt and
+//!   particles (paper 1.46–1.48×): threshold > 1 (compact must be the faster).
+//! - A-ULMPM §6.1.1 / Fig. 14, convergence: the spinning plate with the same particles
+//!   (spacing 1/256 m) on grids h = 1/16 … 1/64 against h = 1/128, RMS of particle
+//!   displacement (eq. 36); observed order on the finest pair for total-Lagrangian and
+//!   adaptive references (paper: second order): threshold ≥ 1.5.
+
+use crate::bench::{run_peer, BenchKernel, PeerRun, PeerScene, PeerSize};
+use crate::plot::{line_chart, Series};
+use crate::run::{run_scene, RunOptions};
+use crate::scene::parse_scene_in;
+use crate::study::{compare, load_run, RunData};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+const TWO_SPHERES: &str = include_str!("../../../scenes/two_spheres.toml");
+const SPINNING_ROD: &str = include_str!("../../../scenes/spinning_rod.toml");
+const SPINNING_PLATE: &str = include_str!("../../../scenes/spinning_plate_2d.toml");
+
+/// A jelly cube standing on a sticky floor (its base held by the wall one cell up),
+/// set rocking by an initial spin about z, no gravity (CK-MPM Fig. 14's setting,
+/// small): whatever kinetic + elastic energy it loses, numerical diffusion took.
+const JELLY_STICKY: &str = r#"
+[simulation]
+dim = 3
+precision = "f64"
+h = 0.03125
+domain_min = [0.0, 0.0, 0.0]
+domain_max = [1.0, 1.0, 1.0]
+end_time = 1.0
+frame_dt = 0.02
+cfl = 0.4
+gravity = [0.0, 0.0, 0.0]
+boundary = "sticky"
+kernel = "compact"
+transfer = "apic"
+
+[[material]]
+name = "jelly"
+model = "neo-hookean"
+density = 1000.0
+youngs_modulus = 5.0e4
+poisson_ratio = 0.3
+
+[[body]]
+material = "jelly"
+shape = { type = "box", min = [0.375, 0.03125, 0.375], max = [0.625, 0.28125, 0.625] }
+angular_velocity = [0.0, 0.0, 4.0]
+"#;
+
+/// Options of `mpm verify`.
+#[derive(Clone, Debug)]
+pub struct VerifyOptions {
+    /// Reduced sizes (under 3 minutes on 2 cores).
+    pub quick: bool,
+    /// Output directory (report, plots, runs).
+    pub out: PathBuf,
+    /// Worker threads.
+    pub threads: usize,
+    /// Run only the checks whose names start with one of these (empty: all).
+    pub only: Vec<String>,
+}
+
+/// The check families, by the name prefix their results carry.
+pub const CHECKS: [&str; 5] = [
+    "momentum_two_spheres",
+    "angular_momentum_spinning_rod",
+    "diffusion_jelly",
+    "speed_compact_vs_quadratic",
+    "convergence_plate",
+];
+
+/// One check's outcome.
+#[derive(Clone, Debug)]
+pub struct CheckResult {
+    /// Short name.
+    pub name: String,
+    /// Where the claim comes from.
+    pub source: String,
+    /// What is measured.
+    pub quantity: String,
+    /// Our number.
+    pub ours: f64,
+    /// The paper's number, when it gives one.
+    pub paper: Option<String>,
+    /// The threshold, in words (e.g. "≤ 1e-10").
+    pub threshold: String,
+    /// Whether ours meets it.
+    pub pass: bool,
+    /// Supporting detail.
+    pub detail: String,
+    /// Wall seconds the check took.
+    pub seconds: f64,
+}
+
+/// A check that could not run at all (its runs failed).
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct VerifyError(pub String);
+
+fn run_text(
+    opts: &VerifyOptions,
+    name: &str,
+    text: &str,
+    overrides: &[&str],
+) -> Result<RunData, VerifyError> {
+    let overrides: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();
+    let origin = format!("verify/{name}");
+    let scene =
+        parse_scene_in(text, &origin, &overrides, None).map_err(|e| VerifyError(e.to_string()))?;
+    let out = opts.out.join("runs").join(name);
+    let _ = std::fs::remove_dir_all(&out);
+    let run = RunOptions {
+        out: out.clone(),
+        max_frames: None,
+        progress: false,
+        origin,
+        threads: opts.threads,
+        checkpoint_every: None,
+        source: None,
+    };
+    run_scene(&scene, &run).map_err(|e| VerifyError(e.to_string()))?;
+    load_run(&out).map_err(VerifyError)
+}
+
+fn column<'a>(data: &'a RunData, name: &str) -> Result<&'a [f64], VerifyError> {
+    data.stats
+        .column(name)
+        .ok_or_else(|| VerifyError(format!("stats.csv has no column {name}")))
+}
+
+/// Largest deviation from the first row over the run, per vector, of the columns
+/// `prefix_x/y/z`.
+fn max_drift(data: &RunData, prefix: &str) -> Result<([f64; 3], f64), VerifyError> {
+    let cols: Vec<&[f64]> = ["x", "y", "z"]
+        .iter()
+        .map(|a| column(data, &format!("{prefix}_{a}")))
+        .collect::<Result<_, _>>()?;
+    let first = [cols[0][0], cols[1][0], cols[2][0]];
+    let mut drift = 0.0f64;
+    for i in 0..cols[0].len() {
+        let d: f64 = (0..3)
+            .map(|a| (cols[a][i] - first[a]).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        drift = drift.max(d);
+    }
+    Ok((first, drift))
+}
+
+fn momentum_two_spheres(opts: &VerifyOptions) -> Result<CheckResult, VerifyError> {
+    let t0 = Instant::now();
+    let over: &[&str] = if opts.quick {
+        &["simulation.h=0.03125", "simulation.end_time=1.5"]
+    } else {
+        &[]
+    };
+    let data = run_text(opts, "two_spheres", TWO_SPHERES, over)?;
+    let mass = column(&data, "mass")?[0];
+    let cols: Vec<&[f64]> = ["x", "y", "z"]
+        .iter()
+        .map(|a| column(&data, &format!("momentum_{a}")))
+        .collect::<Result<_, _>>()?;
+    // One sphere: half the mass at 0.05 m/s per axis.
+    let sphere = 0.5 * mass * 0.05;
+    let mut linf = 0.0f64;
+    for col in &cols {
+        for v in col.iter() {
+            linf = linf.max((v - col[0]).abs());
+        }
+    }
+    let ours = linf / sphere;
+    Ok(CheckResult {
+        name: "momentum_two_spheres".into(),
+        source: "CK-MPM §6.1".into(),
+        quantity: "L∞ drift of total linear momentum / one sphere's momentum".into(),
+        ours,
+        paper: Some("1.06e-5".into()),
+        threshold: "≤ 1e-10".into(),
+        pass: ours <= 1e-10,
+        detail: format!(
+            "{} frames to t = {} s",
+            cols[0].len(),
+            column(&data, "time")?.last().copied().unwrap_or(0.0)
+        ),
+        seconds: t0.elapsed().as_secs_f64(),
+    })
+}
+
+fn angular_momentum_rod(opts: &VerifyOptions) -> Result<CheckResult, VerifyError> {
+    let t0 = Instant::now();
+    let over: &[&str] = if opts.quick {
+        &["simulation.h=0.015625", "simulation.end_time=1.0"]
+    } else {
+        &[]
+    };
+    let data = run_text(opts, "spinning_rod", SPINNING_ROD, over)?;
+    let (first, drift) = max_drift(&data, "angular_momentum")?;
+    let norm = first.iter().map(|c| c * c).sum::<f64>().sqrt();
+    let ours = drift / norm;
+    Ok(CheckResult {
+        name: "angular_momentum_spinning_rod".into(),
+        source: "CK-MPM §6.1".into(),
+        quantity: "relative drift of the angular momentum (affine part included)".into(),
+        ours,
+        paper: Some("6e-3 (5 s)".into()),
+        threshold: "≤ 1e-9".into(),
+        pass: ours <= 1e-9,
+        detail: format!(
+            "to t = {} s",
+            column(&data, "time")?.last().copied().unwrap_or(0.0)
+        ),
+        seconds: t0.elapsed().as_secs_f64(),
+    })
+}
+
+/// Energy a rocking jelly cube keeps, compact over quadratic: `sticky` stands it on
+/// the sticky floor (the paper's setting); otherwise it spins free in mid-air, where
+/// only the transfers can dissipate.
+fn diffusion_jelly(opts: &VerifyOptions, sticky: bool) -> Result<CheckResult, VerifyError> {
+    let t0 = Instant::now();
+    let h: f64 = if opts.quick { 0.03125 } else { 0.015625 };
+    // Base on the wall one cell up, or centred in the domain.
+    let y0 = if sticky { h } else { 0.375 };
+    let tag = if sticky { "sticky_floor" } else { "free_spin" };
+    let mut series: Vec<Series> = Vec::new();
+    let mut kept = Vec::new();
+    for kernel in ["compact", "quadratic"] {
+        let data = run_text(
+            opts,
+            &format!("jelly_{tag}_{kernel}"),
+            JELLY_STICKY,
+            &[
+                &format!("simulation.kernel={kernel}"),
+                &format!("simulation.h={h}"),
+                &format!("body.0.shape.min=[0.375, {y0}, 0.375]"),
+                &format!("body.0.shape.max=[0.625, {}, 0.625]", y0 + 0.25),
+            ],
+        )?;
+        let t = column(&data, "time")?;
+        let k = column(&data, "kinetic_energy")?;
+        let e = column(&data, "elastic_energy")?;
+        let vib: Vec<(f64, f64)> = (0..t.len()).map(|i| (t[i], k[i] + e[i])).collect();
+        // Mean over the last quarter (several rocking periods) over the initial energy.
+        let tail = &vib[vib.len() * 3 / 4..];
+        let mean = tail.iter().map(|p| p.1).sum::<f64>() / tail.len().max(1) as f64;
+        kept.push(mean / vib[0].1);
+        series.push((kernel.to_string(), vib));
+    }
+    let file = format!("diffusion_jelly_{tag}.png");
+    line_chart(
+        &opts.out.join(&file),
+        &format!(
+            "Jelly cube {}: kinetic + elastic energy",
+            if sticky {
+                "rocking on a sticky floor"
+            } else {
+                "spinning free"
+            }
+        ),
+        ("time [s]", "energy [J]"),
+        &series,
+        (900, 540),
+    )
+    .map_err(|e| VerifyError(e.to_string()))?;
+    let ours = kept[0] / kept[1];
+    Ok(CheckResult {
+        name: format!("diffusion_jelly_{tag}"),
+        source: "CK-MPM §6.2, Fig. 14".into(),
+        quantity: "vibration energy kept (last quarter / initial), compact ÷ quadratic".into(),
+        ours,
+        paper: Some("> 1 (compact keeps more)".into()),
+        threshold: "≥ 1".into(),
+        pass: ours >= 1.0,
+        detail: format!(
+            "kept: compact {:.3}, quadratic {:.3} of the initial energy; plot {file}",
+            kept[0], kept[1]
+        ),
+        seconds: t0.elapsed().as_secs_f64(),
+    })
+}
+
+fn speed_ratio(opts: &VerifyOptions) -> Result<CheckResult, VerifyError> {
+    let t0 = Instant::now();
+    let size = if opts.quick {
+        PeerSize {
+            n: 32,
+            fill: 0.5,
+            warmup: 3,
+            steps: 10,
+            repeats: 3,
+        }
+    } else {
+        PeerSize::S
+    };
+    let mut rate = Vec::new();
+    for kernel in [BenchKernel::Compact, BenchKernel::Quadratic] {
+        let rec = run_peer(&PeerRun {
+            scene: PeerScene::Jelly,
+            kernel,
+            mls: true,
+            size,
+            threads: opts.threads,
+        })
+        .map_err(VerifyError)?;
+        rate.push(rec["mpps"].as_f64().unwrap_or(f64::NAN));
+    }
+    let ours = rate[0] / rate[1];
+    Ok(CheckResult {
+        name: "speed_compact_vs_quadratic".into(),
+        source: "CK-MPM Table 3".into(),
+        quantity: "throughput compact/dual ÷ quadratic, jelly, MLS, equal dt and particles".into(),
+        ours,
+        paper: Some("1.46–1.48".into()),
+        threshold: "> 1".into(),
+        pass: ours > 1.0,
+        detail: format!(
+            "{:.2} vs {:.2} Mparticle-steps/s, {} threads, n = {}",
+            rate[0], rate[1], opts.threads, size.n
+        ),
+        seconds: t0.elapsed().as_secs_f64(),
+    })
+}
+
+fn convergence_plate(opts: &VerifyOptions) -> Result<Vec<CheckResult>, VerifyError> {
+    // Same particles on every grid: spacing 1/256 m, so ppc = (256 h)².
+    let levels: &[u32] = if opts.quick {
+        &[16, 32, 64]
+    } else {
+        &[16, 32, 64, 128]
+    };
+    let finest = levels.last().copied().unwrap_or(64) * 2;
+    let mut out = Vec::new();
+    let mut series: Vec<Series> = Vec::new();
+    for (reference, label) in [("total-lagrangian", "TL"), ("adaptive", "A-UL")] {
+        let t0 = Instant::now();
+        let run = |cells: u32| -> Result<RunData, VerifyError> {
+            let ppc = (256 / cells).pow(2);
+            run_text(
+                opts,
+                &format!("plate_{reference}_{cells}"),
+                SPINNING_PLATE,
+                &[
+                    &format!("simulation.h={}", 1.0 / cells as f64),
+                    &format!("body.0.particles_per_cell={ppc}"),
+                    &format!("simulation.reference={reference}"),
+                    "simulation.adaptive_epsilon=2e-3",
+                    "simulation.adaptive_eta=0.01",
+                    "simulation.end_time=0.025",
+                    "simulation.frame_dt=0.025",
+                    "simulation.dt=1e-4",
+                ],
+            )
+        };
+        let fine = run(finest)?;
+        let mut errors = Vec::new();
+        for &cells in levels {
+            let data = run(cells)?;
+            let e = compare(&data, &fine)
+                .into_iter()
+                .find(|(n, _)| n == "displacement_rms")
+                .map_or(f64::NAN, |(_, v)| v);
+            errors.push((1.0 / cells as f64, e));
+        }
+        let k = errors.len();
+        let order = (errors[k - 2].1 / errors[k - 1].1).log2();
+        series.push((label.to_string(), errors.clone()));
+        out.push(CheckResult {
+            name: format!(
+                "convergence_plate_{}",
+                label.to_lowercase().replace('-', "_")
+            ),
+            source: "A-ULMPM §6.1.1, Fig. 14".into(),
+            quantity: format!("observed order of displacement RMS (eq. 36), {label}"),
+            ours: order,
+            paper: Some("2".into()),
+            threshold: "≥ 1.5".into(),
+            pass: order >= 1.5,
+            detail: errors
+                .iter()
+                .map(|(h, e)| format!("h=1/{:.0}: {e:.3e}", 1.0 / h))
+                .collect::<Vec<_>>()
+                .join(", ")
+                + &format!(" (against h = 1/{finest})"),
+            seconds: t0.elapsed().as_secs_f64(),
+        });
+    }
+    // log2 of the error against log2 of h: slopes read as orders.
+    let logged: Vec<Series> = series
+        .iter()
+        .map(|(n, pts)| {
+            (
+                n.clone(),
+                pts.iter().map(|(h, e)| (h.log2(), e.log2())).collect(),
+            )
+        })
+        .collect();
+    line_chart(
+        &opts.out.join("convergence_plate.png"),
+        "Spinning plate: displacement RMS vs h (log2–log2)",
+        ("log2 h [m]", "log2 E"),
+        &logged,
+        (900, 540),
+    )
+    .map_err(|e| VerifyError(e.to_string()))?;
+    Ok(out)
+}
+
+/// Runs every check, calling `progress` after each; writes `verify.md`.
+pub fn run_verify(
+    opts: &VerifyOptions,
+    mut progress: impl FnMut(&CheckResult),
+) -> Result<Vec<CheckResult>, VerifyError> {
+    std::fs::create_dir_all(&opts.out)
+        .map_err(|e| VerifyError(format!("{}: {e}", opts.out.display())))?;
+    let mut results = Vec::new();
+    let mut push = |r: CheckResult, results: &mut Vec<CheckResult>| {
+        progress(&r);
+        results.push(r);
+    };
+    let wanted = |family: &str| {
+        opts.only.is_empty()
+            || opts
+                .only
+                .iter()
+                .any(|o| family.starts_with(o.as_str()) || o.starts_with(family))
+    };
+    if let Some(bad) = opts.only.iter().find(|o| {
+        !CHECKS
+            .iter()
+            .any(|c| c.starts_with(o.as_str()) || o.starts_with(c))
+    }) {
+        return Err(VerifyError(format!(
+            "--only {bad}: no such check; the checks are {}",
+            CHECKS.join(", ")
+        )));
+    }
+    if wanted(CHECKS[0]) {
+        push(momentum_two_spheres(opts)?, &mut results);
+    }
+    if wanted(CHECKS[1]) {
+        push(angular_momentum_rod(opts)?, &mut results);
+    }
+    if wanted(CHECKS[2]) {
+        push(diffusion_jelly(opts, false)?, &mut results);
+        push(diffusion_jelly(opts, true)?, &mut results);
+    }
+    if wanted(CHECKS[3]) {
+        push(speed_ratio(opts)?, &mut results);
+    }
+    if wanted(CHECKS[4]) {
+        for r in convergence_plate(opts)? {
+            push(r, &mut results);
+        }
+    }
+    write_report(opts, &results)?;
+    Ok(results)
+}
+
+fn write_report(opts: &VerifyOptions, results: &[CheckResult]) -> Result<(), VerifyError> {
+    let passed = results.iter().filter(|r| r.pass).count();
+    let mut md = format!(
+        "# mpm verify{}\n\n{passed} of {} checks pass. Thresholds are stated in \
+         `crates/mpm-cli/src/verify.rs` with their reasons.\n\n\
+         | check | source | quantity | ours | paper | threshold | result |\n\
+         |---|---|---|---|---|---|---|\n",
+        if opts.quick { " --quick" } else { "" },
+        results.len()
+    );
+    for r in results {
+        md.push_str(&format!(
+            "| {} | {} | {} | {:.3e} | {} | {} | {} |\n",
+            r.name,
+            r.source,
+            r.quantity,
+            r.ours,
+            r.paper.as_deref().unwrap_or("–"),
+            r.threshold,
+            if r.pass { "PASS" } else { "**FAIL**" }
+        ));
+    }
+    md.push_str("\n## Details\n\n");
+    for r in results {
+        md.push_str(&format!(
+            "- `{}` ({:.1} s): {}\n",
+            r.name, r.seconds, r.detail
+        ));
+    }
+    md.push_str(
+        "\n![free spin](diffusion_jelly_free_spin.png)\n\n![sticky floor](diffusion_jelly_sticky_floor.png)\n\n![convergence](convergence_plate.png)\n",
+    );
+    let path = opts.out.join("verify.md");
+    crate::output::write_atomic(&path, md.as_bytes())
+        .map_err(|e| VerifyError(format!("{}: {e}", path.display())))
+}
+
+/// The directory a report goes to by default.
+pub fn default_out(quick: bool) -> PathBuf {
+    Path::new("out").join(if quick { "verify-quick" } else { "verify" })
+}
