@@ -811,7 +811,7 @@ fn verify_quick_conservation_and_convergence() {
         "verify",
         "--quick",
         "--only",
-        "momentum_two_spheres,angular_momentum,convergence_plate",
+        "momentum_two_spheres,angular_momentum,convergence_plate,reference_updates",
         "--out",
         out_dir.to_str().unwrap(),
     ]);
@@ -822,7 +822,7 @@ fn verify_quick_conservation_and_convergence() {
         String::from_utf8_lossy(&out.stderr)
     );
     let md = std::fs::read_to_string(out_dir.join("verify.md")).unwrap();
-    assert!(md.contains("4 of 4 checks pass"), "{md}");
+    assert!(md.contains("5 of 5 checks pass"), "{md}");
     let ours = |name: &str| -> f64 {
         let row = md
             .lines()
@@ -834,6 +834,7 @@ fn verify_quick_conservation_and_convergence() {
     assert!(ours("angular_momentum_spinning_rod") <= 1e-9);
     assert!(ours("convergence_plate_tl") >= 1.5);
     assert!(ours("convergence_plate_a_ul") >= 1.5);
+    assert!(ours("reference_updates_droplet") >= 4.3);
     assert!(
         text.contains("paper 1.06e-5") && text.contains("PASS"),
         "{text}"
