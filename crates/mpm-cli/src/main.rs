@@ -181,6 +181,10 @@ enum Command {
         /// Skip the animated GIF preview.
         #[arg(long)]
         no_gif: bool,
+        /// Colour by a field instead: speed, vx, vy, vz, x, y, z, or a VTU array
+        /// (J, stress_norm, plastic, body; needs output.format with "vtu").
+        #[arg(long)]
+        field: Option<String>,
     },
     /// Parse and check a scene file; simulate nothing.
     Validate {
@@ -256,11 +260,13 @@ fn main() -> ExitCode {
             color,
             width,
             no_gif,
+            field,
         } => {
             let opts = mpm_cli::render::RenderOptions {
                 color,
                 width,
                 gif: !no_gif,
+                field,
             };
             match mpm_cli::render::render_dir(&dir, &opts) {
                 Ok(r) => {

@@ -84,6 +84,47 @@ pub fn read_ply_positions(bytes: &[u8]) -> Result<Vec<[f64; 3]>, String> {
         .collect())
 }
 
+/// One point-data array of a VTU file (as written by `mpm run`), by name, as `f64`;
+/// vector arrays (velocity) become their magnitude per point.
+pub fn read_vtu_field(bytes: &[u8], name: &str) -> Result<Vec<f64>, String> {
+    use vtkio::model::{Attribute, DataSet};
+    let vtk = vtkio::Vtk::parse_xml(bytes).map_err(|e| format!("not a readable VTU file ({e})"))?;
+    let DataSet::UnstructuredGrid { pieces, .. } = vtk.data else {
+        return Err("not an UnstructuredGrid".into());
+    };
+    let piece = pieces
+        .into_iter()
+        .next()
+        .ok_or("no piece")?
+        .load_piece_data(None)
+        .map_err(|e| format!("cannot load the piece ({e})"))?;
+    let mut names = Vec::new();
+    for a in &piece.data.point {
+        if let Attribute::DataArray(d) = a {
+            if d.name == name {
+                let comp = d.num_comp().max(1);
+                let values: Vec<f64> = d
+                    .data
+                    .clone()
+                    .cast_into::<f64>()
+                    .ok_or_else(|| format!("array {name} is not numeric"))?;
+                if comp == 1 {
+                    return Ok(values);
+                }
+                return Ok(values
+                    .chunks(comp)
+                    .map(|c| c.iter().map(|x| x * x).sum::<f64>().sqrt())
+                    .collect());
+            }
+            names.push(d.name.clone());
+        }
+    }
+    Err(format!(
+        "no point array `{name}`; it has {}",
+        names.join(", ")
+    ))
+}
+
 /// Reads the named scalar vertex properties (any PLY numeric type, widened to
 /// `f64`) of a binary little-endian PLY, one column per name, in the order asked.
 pub fn read_ply_columns(bytes: &[u8], names: &[&str]) -> Result<Vec<Vec<f64>>, String> {

@@ -3,8 +3,9 @@
 //!
 //! 3-D frames are seen from azimuth 35°, elevation 25° (y up) and drawn far to near,
 //! darker with distance, so depth reads without lighting. 2-D frames are drawn in the
-//! x–y plane. Colours: by material (a fixed palette) or by speed (one scale for the
-//! whole run, so frames compare).
+//! x–y plane. Colours: by material (a fixed palette), by speed, or by a chosen field
+//! (`--field`: a PLY column or any VTU point array), on one scale for the whole run
+//! so frames compare.
 
 use crate::output::{read_ply_columns, write_atomic};
 use image::codecs::gif::{GifEncoder, Repeat};
@@ -30,6 +31,10 @@ pub struct RenderOptions {
     pub width: u32,
     /// Write the animated preview.
     pub gif: bool,
+    /// Colour by this per-particle field instead (one scale over the run): `speed`,
+    /// `vx`, `vy`, `vz`, `x`, `y`, `z` from the PLY frames, or any point array of the
+    /// VTU frames (`J`, `stress_norm`, `plastic`, `body`, …).
+    pub field: Option<String>,
 }
 
 /// What a render produced.
@@ -155,11 +160,51 @@ fn speed_color(t: f64) -> [u8; 3] {
     std::array::from_fn(|c| (ANCHORS[k][c] * (1.0 - f) + ANCHORS[k + 1][c] * f).round() as u8)
 }
 
-/// One frame's particles: positions, speeds, material ids.
+/// One frame's particles: positions, the coloured value (speed or a chosen field),
+/// material ids.
 struct FrameData {
     x: Vec<[f64; 3]>,
     speed: Vec<f64>,
     material: Vec<u16>,
+}
+
+const PLY_FIELDS: [&str; 6] = ["x", "y", "z", "vx", "vy", "vz"];
+
+/// Replaces each frame's value by `field`: a PLY column, or a VTU array read from the
+/// frame's `.vtu` twin.
+fn load_field(frames: &mut [FrameData], files: &[PathBuf], field: &str) -> Result<(), String> {
+    if field == "speed" {
+        return Ok(());
+    }
+    for (frame, file) in frames.iter_mut().zip(files) {
+        let values = if let Some(k) = PLY_FIELDS.iter().position(|f| *f == field) {
+            let bytes =
+                std::fs::read(file).map_err(|e| format!("cannot read {}: {e}", file.display()))?;
+            read_ply_columns(&bytes, &[PLY_FIELDS[k]])
+                .map_err(|e| format!("{}: {e}", file.display()))?
+                .remove(0)
+        } else {
+            let vtu = file.with_extension("vtu");
+            let bytes = std::fs::read(&vtu).map_err(|e| {
+                format!(
+                    "--field {field}: cannot read {} ({e}). Fields other than speed, vx, vy, vz, x, y, z come from VTU frames: run the scene with output.format = [\"ply\", \"vtu\"].",
+                    vtu.display()
+                )
+            })?;
+            crate::output::read_vtu_field(&bytes, field)
+                .map_err(|e| format!("--field {field}: {}: {e}", vtu.display()))?
+        };
+        if values.len() != frame.x.len() {
+            return Err(format!(
+                "--field {field}: {} values for {} particles in {}",
+                values.len(),
+                frame.x.len(),
+                file.display()
+            ));
+        }
+        frame.speed = values;
+    }
+    Ok(())
 }
 
 fn read_frame(path: &Path) -> Result<FrameData, String> {
@@ -178,7 +223,13 @@ fn read_frame(path: &Path) -> Result<FrameData, String> {
     })
 }
 
-fn draw(frame: &FrameData, cam: &Camera, radius: i32, color: ColorBy, vmax: f64) -> RgbImage {
+fn draw(
+    frame: &FrameData,
+    cam: &Camera,
+    radius: i32,
+    color: ColorBy,
+    (vmin, vmax): (f64, f64),
+) -> RgbImage {
     let mut img = RgbImage::from_pixel(cam.size.0, cam.size.1, BACKGROUND);
     let (dim, corners) = (cam.dim, box_corners(cam.lo, cam.hi));
     let edges = (0..8usize)
@@ -203,8 +254,8 @@ fn draw(frame: &FrameData, cam: &Camera, radius: i32, color: ColorBy, vmax: f64)
         let (px, py, _) = cam.project(&frame.x[i]);
         let base = match color {
             ColorBy::Material => PALETTE[frame.material[i] as usize % PALETTE.len()],
-            ColorBy::Speed => speed_color(if vmax > 0.0 {
-                frame.speed[i] / vmax
+            ColorBy::Speed => speed_color(if vmax > vmin {
+                (frame.speed[i] - vmin) / (vmax - vmin)
             } else {
                 0.0
             }),
@@ -287,15 +338,30 @@ pub fn render_dir(dir: &Path, opts: &RenderOptions) -> Result<RenderReport, Stri
     }
     let (dim, lo, hi, h) = scene_box(dir)?;
     let files = frame_files(dir)?;
-    let frames: Vec<FrameData> = files
+    let mut frames: Vec<FrameData> = files
         .iter()
         .map(|f| read_frame(f))
         .collect::<Result<_, _>>()?;
-    let vmax = frames
+    let color = match &opts.field {
+        Some(field) => {
+            load_field(&mut frames, &files, field)?;
+            ColorBy::Speed
+        }
+        None => opts.color,
+    };
+    // One scale for the whole run (speed from 0; a chosen field from its minimum).
+    let (vmin, vmax) = frames
         .iter()
         .flat_map(|f| f.speed.iter().copied())
         .filter(|s| s.is_finite())
-        .fold(0.0, f64::max);
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
+            (a.min(v), b.max(v))
+        });
+    let vmin = if opts.field.is_none() || vmin > vmax {
+        0.0
+    } else {
+        vmin
+    };
     let cam = Camera::new(dim, lo, hi, opts.width);
     // Particles sit about h/2 apart: splats of radius ≈ 0.3 h touch without merging.
     let radius = ((0.3 * h * cam.scale).round() as i32).max(1);
@@ -305,7 +371,7 @@ pub fn render_dir(dir: &Path, opts: &RenderOptions) -> Result<RenderReport, Stri
     let stride = frames.len().div_ceil(GIF_MAX_FRAMES).max(1);
     let mut gif_frames = Vec::new();
     for (k, (frame, file)) in frames.iter().zip(&files).enumerate() {
-        let img = draw(frame, &cam, radius, opts.color, vmax);
+        let img = draw(frame, &cam, radius, color, (vmin, vmax));
         let stem = file
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())

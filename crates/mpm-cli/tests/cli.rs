@@ -918,6 +918,96 @@ fn plot_writes_charts_of_stats_columns() {
     );
 }
 
+/// `mpm render --field`: a PLY column or a VTU array on one scale; an unknown array
+/// is named with the ones that exist; a VTU field without VTU frames says how to get
+/// them.
+#[test]
+fn render_colours_by_a_chosen_field() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = write_scene(dir.path(), "s.toml", SMALL_2D);
+    let out_dir = dir.path().join("out");
+    let run = mpm(&[
+        "run",
+        path.to_str().unwrap(),
+        "--out",
+        out_dir.to_str().unwrap(),
+        "--set",
+        "output.format=[\"ply\", \"vtu\"]",
+        "--frames",
+        "2",
+    ]);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    for field in ["J", "stress_norm", "vy", "velocity"] {
+        let out = mpm(&[
+            "render",
+            out_dir.to_str().unwrap(),
+            "--field",
+            field,
+            "--width",
+            "160",
+            "--no-gif",
+        ]);
+        assert!(
+            out.status.success(),
+            "{field}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let img = image::open(out_dir.join("render/frame_00002.png"))
+            .unwrap()
+            .to_rgb8();
+        let coloured = img
+            .pixels()
+            .filter(|p| {
+                let [r, g, b] = p.0.map(i32::from);
+                r.max(g).max(b) - r.min(g).min(b) > 60
+            })
+            .count();
+        assert!(coloured > 100, "{field}: {coloured} coloured pixels");
+    }
+    let out = mpm(&[
+        "render",
+        out_dir.to_str().unwrap(),
+        "--field",
+        "nope",
+        "--no-gif",
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        err.contains("no point array `nope`") && err.contains("stress_norm"),
+        "{err}"
+    );
+
+    let ply_only = dir.path().join("ply");
+    assert!(mpm(&[
+        "run",
+        path.to_str().unwrap(),
+        "--out",
+        ply_only.to_str().unwrap(),
+        "--frames",
+        "1"
+    ])
+    .status
+    .success());
+    let out = mpm(&[
+        "render",
+        ply_only.to_str().unwrap(),
+        "--field",
+        "J",
+        "--no-gif",
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        err.contains("output.format") && err.contains("vtu"),
+        "{err}"
+    );
+}
+
 /// `mpm bench SCENE.toml` times the scene's own simulation and checks its state.
 #[test]
 fn bench_times_a_scene_file() {
