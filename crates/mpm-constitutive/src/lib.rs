@@ -11,6 +11,7 @@
 //! over them used where the model is chosen at run time.
 
 mod drucker_prager;
+mod elastic_response;
 mod elastoplastic;
 mod fixed_corotated;
 mod hencky;
@@ -23,6 +24,7 @@ mod snow;
 mod von_mises;
 
 pub use drucker_prager::DruckerPrager;
+pub use elastic_response::ElasticResponse;
 pub use elastoplastic::ElastoplasticModel;
 pub use fixed_corotated::FixedCorotated;
 pub use hencky::HenckyElasticity;

@@ -184,6 +184,11 @@ impl<'a, T: Real, const D: usize> GatherView<'a, T, D> {
             blocks,
         }
     }
+    /// Flat index of node `node` of grid `grid` (which must lie within the view).
+    #[inline(always)]
+    pub fn index(&self, grid: usize, node: &[i32; D]) -> usize {
+        self.flat(grid, node)
+    }
     /// Velocity after the grid update at a flat index from [`Self::indexer`].
     #[inline(always)]
     pub fn velocity_at(&self, i: usize) -> Vector<T, D> {
@@ -706,6 +711,42 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
                     }
                     let q = self.position_moment.get(i).unwrap_or(&zero);
                     f(grid, node, m, q, &mut self.velocity[i]);
+                }
+            }
+        }
+    }
+
+    /// Visits every node with mass in storage order with its flat index (the index
+    /// of `mass`, `velocity`, … and of [`GatherView::index`]):
+    /// `f(flat, grid, node_index, mass, position_moment)` (`position_moment` is zero
+    /// unless the scatter kept positions). Sequential.
+    pub fn for_each_node_indexed(
+        &self,
+        mut f: impl FnMut(usize, usize, [i32; D], T, &Vector<T, D>),
+    ) {
+        let npb = self.nodes_per_block;
+        let n_blocks = self.blocks.len();
+        let zero = Vector::<T, D>::zeros();
+        for chunk in 0..self.grids * n_blocks {
+            let grid = chunk / n_blocks;
+            let block = self.blocks[chunk % n_blocks];
+            for l in 0..npb {
+                let i = chunk * npb + l;
+                let m = self.mass[i];
+                if m > T::zero() {
+                    let mut node = block.map(|b| b * BLOCK);
+                    let mut rem = l;
+                    for na in node.iter_mut() {
+                        *na += (rem % BLOCK as usize) as i32;
+                        rem /= BLOCK as usize;
+                    }
+                    f(
+                        i,
+                        grid,
+                        node,
+                        m,
+                        self.position_moment.get(i).unwrap_or(&zero),
+                    );
                 }
             }
         }

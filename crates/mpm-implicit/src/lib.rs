@@ -1,31 +1,39 @@
-//! Implicit time integration of MPM grid velocities (backward Euler as a
-//! minimisation, Newton with matrix-free conjugate gradient).
+//! Implicit time integration of MPM grid velocities: backward Euler as a
+//! minimisation, solved by Newton's method with faer's matrix-free conjugate gradient.
 //!
-//! This crate sits *below* `mpm-aul`, so it cannot know A-UL's stored stencils: it
-//! solves for grid velocities through an abstract [`DeformationOperator`] (grid
-//! velocities → each particle's deformation after the step, and its adjoint that turns
-//! particle stresses into nodal forces). `mpm-transfer`'s Eulerian stencils and
-//! `mpm-aul`'s stored stencils both implement it.
+//! The crate sits *below* `mpm-aul`, so it cannot know A-UL's stored stencils: it
+//! solves for grid velocities through a [`ParticleDeformation`] — grid velocities →
+//! each particle's deformation after the step, `F_p(v) = (I + Δt Σ_i v_i a_ipᵀ) F_p`,
+//! and its transpose that turns particle stresses into nodal forces. The Eulerian
+//! stepper of `mpm-transfer` and the stored stencils of `mpm-aul` both fill one
+//! (see [`deformation`] for the `a_ip` of each), so every kernel × layout × reference
+//! shares this solver.
 //!
-//! Status: the traits and settings are public so that the layers above can be written
-//! against them; the Newton/CG solver itself is delivered by the implicit-integration
-//! issue. Scenes asking for `integrator = "semi-implicit"` or `"implicit"` are
-//! rejected with a "not supported yet" error by the CLI until then.
+//! One step ([`backward_euler`]): P2G of mass and momentum without elastic forces,
+//! the explicit prediction `v̂` (gravity, explicit viscosity, colliders), then
+//! `min_v E(v) = Σ_i ½ m_i |v_i − v̂_i|² + Σ_p V_p Ψ_p(F_p(v))` subject to the
+//! colliders' constraints, then the usual G2P with the solved velocities (plastic
+//! models project `F` there, after the solve).
+//!
+//! - [`Integrator::SemiImplicit`]: one Newton step (A-ULMPM eq. 26).
+//! - [`Integrator::Implicit`]: Newton with a backtracking line search on `E` until the
+//!   residual is below [`NewtonSettings::newton_tolerance`].
+//!
+//! [`sparse`] assembles the same Hessian as a faer `SparseColMat`, for tests and to
+//! count non-zeros per row (compact dual grid against quadratic B-splines).
 
-use mpm_math::{Matrix, Real, Vector};
+pub mod backward_euler;
+pub mod deformation;
+pub mod eulerian;
+pub mod grid_solve;
+pub mod newton;
+pub mod sparse;
 
-/// Grid velocities → particle deformation gradients, and the adjoint.
-pub trait DeformationOperator<T: Real, const D: usize> {
-    /// Number of particles.
-    fn particle_count(&self) -> usize;
-    /// Number of grid velocity unknowns (nodes).
-    fn node_count(&self) -> usize;
-    /// `F_p(v)` after a step of length `dt` with nodal velocities `velocities`.
-    fn deformation(&self, velocities: &[Vector<T, D>], dt: T, out: &mut [Matrix<T, D>]);
-    /// Adjoint: particle first-Piola stresses (already multiplied by `V_p`) → nodal
-    /// forces `f_i = −Σ_p V_p P_p (∂F_p/∂v_i)`.
-    fn forces(&self, weighted_stresses: &[Matrix<T, D>], dt: T, out: &mut [Vector<T, D>]);
-}
+pub use backward_euler::{project_tangent, BackwardEuler, NodeConstraint, Tangents};
+pub use deformation::{DeformationOperator, ParticleDeformation};
+pub use eulerian::{implicit_eulerian_step, ImplicitStepError};
+pub use grid_solve::{collider_constraint, GridSolve};
+pub use newton::{HessianOperator, NewtonSolver, SolveError, SolveStats};
 
 /// Which time integrator a scene uses.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -42,7 +50,7 @@ pub enum Integrator {
 /// Newton and conjugate-gradient tolerances and caps.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct NewtonSettings {
-    /// Relative residual at which Newton stops.
+    /// Relative residual at which Newton stops (see [`newton`]).
     pub newton_tolerance: f64,
     /// Most Newton iterations per step.
     pub max_newton_iterations: usize,
@@ -57,8 +65,8 @@ impl Default for NewtonSettings {
         NewtonSettings {
             newton_tolerance: 1e-6,
             max_newton_iterations: 20,
-            cg_tolerance: 1e-4,
-            max_cg_iterations: 500,
+            cg_tolerance: 1e-6,
+            max_cg_iterations: 1000,
         }
     }
 }

@@ -225,6 +225,21 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
         dt: T,
         h: T,
     ) {
+        self.particle_to_grid_with(particles, materials, scheme, dt, h, true);
+    }
+
+    /// P2G as [`Self::particle_to_grid`]; with `elastic_forces = false` only the
+    /// viscous part of the stress is scattered (an implicit step treats the elastic
+    /// and pressure forces implicitly, viscosity explicitly).
+    pub fn particle_to_grid_with<S: TransferScheme<T, D>>(
+        &mut self,
+        particles: &Particles<T, D>,
+        materials: &[Material<T>],
+        scheme: &S,
+        dt: T,
+        h: T,
+        elastic_forces: bool,
+    ) {
         let inv_h = T::one() / h;
         let gradient_form = Self::gradient_form();
         let affine = scheme.stores_affine();
@@ -253,10 +268,12 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
                     let c = scheme.p2g_affine(p.affine.get(i), d_inv.as_ref());
                     let model = &materials[p.material[i] as usize];
                     let scale = -p.volume[i] * dt;
-                    let (elastic, viscous_part) = if viscous {
-                        model.kirchhoff_stress_parts(&p.state(i))
-                    } else {
-                        (model.kirchhoff_stress(&p.state(i)), Matrix::<T, D>::zeros())
+                    let zero = Matrix::<T, D>::zeros();
+                    let (elastic, viscous_part) = match (viscous, elastic_forces) {
+                        (true, true) => model.kirchhoff_stress_parts(&p.state(i)),
+                        (true, false) => (zero, model.kirchhoff_stress_parts(&p.state(i)).1),
+                        (false, true) => (model.kirchhoff_stress(&p.state(i)), zero),
+                        (false, false) => (zero, zero),
                     };
                     let mut stress = elastic * scale;
                     // The part applied with the MLS gradient `w D⁻¹ r`.
@@ -290,6 +307,58 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
                 }
             },
         );
+    }
+
+    /// The velocity-gradient stencils of the `F` update that G2P applies, for the
+    /// implicit solve: for particle `p` (in the binned order) and its `j`-th stencil
+    /// node (grid-major, `GRIDS · NODES_PER_AXIS^D` per particle), the node's flat grid
+    /// index in `nodes[p·npp + j]` and `a_pj` in `vectors[p·npp + j]` such that
+    /// `L_p = Σ_j v_node a_pjᵀ` — MLS: `a = γ w D_p⁻¹ r`; APIC, PIC, FLIP and the
+    /// gradient form: `a = γ ∇w` (`γ` the gather weight). Requires [`Self::bin`] and
+    /// [`Self::particle_to_grid`] (which activate the blocks) first.
+    pub fn velocity_gradient_stencils<S: TransferScheme<T, D>>(
+        &self,
+        particles: &Particles<T, D>,
+        scheme: &S,
+        h: T,
+        nodes: &mut [u32],
+        vectors: &mut [Vector<T, D>],
+    ) {
+        let inv_h = T::one() / h;
+        let gw = T::lit(L::gather_weight());
+        let per_grid = K::NODES_PER_AXIS.pow(D as u32);
+        let npp = per_grid * L::GRIDS;
+        let mls = scheme.mls_force() && !Self::gradient_form();
+        let grid = &self.grid;
+        let homes = grid.home_of_sorted();
+        nodes
+            .par_chunks_mut(npp)
+            .zip(vectors.par_chunks_mut(npp))
+            .enumerate()
+            .for_each(|(p, (ns, vs))| {
+                let x = particles.x[p];
+                let st = stencils::<T, D, K, L>(&x, inv_h);
+                let d_inv = if mls {
+                    try_inverse(&moment_matrix::<T, D, L>(&st, h))
+                } else {
+                    None
+                };
+                let view = grid.gather_view(homes[p] as usize);
+                for (k, s) in st.iter().enumerate().take(L::GRIDS) {
+                    let ix = view.indexer(k, &s.base, K::NODES_PER_AXIS);
+                    let (r_axis, g_axis) = axis_tables::<T, D, K>(s, h);
+                    for q in 0..per_grid {
+                        let j = Stencil::<T, D>::local_of::<K>(q);
+                        let (w, grad, r) = node_terms(s, &r_axis, &g_axis, &j);
+                        let e = k * per_grid + q;
+                        ns[e] = ix.index(&j) as u32;
+                        vs[e] = match &d_inv {
+                            Some(di) => di * r * (w * gw),
+                            None => grad * gw,
+                        };
+                    }
+                }
+            });
     }
 
     /// Grid update: `v_i = (m_i v_i + Δt f_i)/m_i + Δt g`, then the colliders at the
