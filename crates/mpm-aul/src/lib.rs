@@ -12,5 +12,7 @@ pub mod simulation;
 pub mod updated_lagrangian;
 
 pub use reference::{Adaptive, Eulerian, Reference, ReferenceConfig, TotalLagrangian};
-pub use simulation::{Simulation, SimulationError, SimulationSnapshot, TimeStepPolicy};
+pub use simulation::{
+    Simulation, SimulationError, SimulationSnapshot, SolverTotals, StepFailure, TimeStepPolicy,
+};
 pub use updated_lagrangian::{LagrangianSnapshot, ReferenceState, UpdatedLagrangianStepper};

@@ -6,6 +6,10 @@ use crate::updated_lagrangian::{LagrangianSnapshot, UpdatedLagrangianStepper};
 use mpm_constitutive::Material;
 use mpm_grid::BlockSparseGrid;
 use mpm_grid::{Collider, GridLayout};
+use mpm_implicit::{
+    implicit_eulerian_step, GridSolve, ImplicitStepError, Integrator, NewtonSettings, SolveError,
+    SolveStats,
+};
 use mpm_kernels::Kernel;
 use mpm_math::{Real, Vector};
 use mpm_transfer::{
@@ -22,6 +26,36 @@ pub enum TimeStepPolicy {
     Fixed(f64),
 }
 
+/// What made a step fail.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum StepFailure {
+    /// A particle's state became unusable.
+    #[error(transparent)]
+    Particle(#[from] StepError),
+    /// The implicit solve did not converge within its caps.
+    #[error("implicit solve: {0}")]
+    Solve(#[from] SolveError),
+}
+
+impl From<ImplicitStepError> for StepFailure {
+    fn from(e: ImplicitStepError) -> Self {
+        match e {
+            ImplicitStepError::Solve(s) => StepFailure::Solve(s),
+            ImplicitStepError::Step(s) => StepFailure::Particle(s),
+        }
+    }
+}
+
+impl StepFailure {
+    /// The particle concerned, when a particle failed.
+    pub fn particle(&self) -> Option<u32> {
+        match self {
+            StepFailure::Particle(e) => Some(e.particle()),
+            StepFailure::Solve(_) => None,
+        }
+    }
+}
+
 /// A step failed.
 #[derive(Debug, thiserror::Error)]
 #[error("step {step} (t = {time:.6} s): {source}")]
@@ -32,7 +66,63 @@ pub struct SimulationError {
     pub time: f64,
     /// What went wrong.
     #[source]
-    pub source: StepError,
+    pub source: StepFailure,
+}
+
+/// Implicit-solver statistics accumulated over a run.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct SolverTotals {
+    /// Implicit steps taken.
+    pub steps: u64,
+    /// Newton iterations over all steps.
+    pub newton_iterations: u64,
+    /// CG iterations over all steps.
+    pub cg_iterations: u64,
+    /// Newton directions that needed the projected (PSD) Hessian.
+    pub projected_directions: u64,
+    /// Most Newton iterations in one step.
+    pub max_newton_iterations: u64,
+    /// Most CG iterations in one step.
+    pub max_cg_iterations: u64,
+    /// Final Newton residual of the last step.
+    pub last_residual: f64,
+    /// Largest final Newton residual of a step.
+    pub max_residual: f64,
+    /// Steps whose solve failed and were retried with half the step (automatic dt).
+    pub retried_steps: u64,
+    /// The automatic implicit step's current cap (halved on a failed solve, grown by
+    /// 25 % after each success); infinite when never limited.
+    pub dt_cap: f64,
+}
+
+impl Default for SolverTotals {
+    fn default() -> Self {
+        SolverTotals {
+            steps: 0,
+            newton_iterations: 0,
+            cg_iterations: 0,
+            projected_directions: 0,
+            max_newton_iterations: 0,
+            max_cg_iterations: 0,
+            last_residual: 0.0,
+            max_residual: 0.0,
+            retried_steps: 0,
+            dt_cap: f64::INFINITY,
+        }
+    }
+}
+
+impl SolverTotals {
+    fn add(&mut self, s: &SolveStats) {
+        self.steps += 1;
+        self.newton_iterations += s.newton_iterations as u64;
+        self.cg_iterations += s.cg_iterations as u64;
+        self.projected_directions += s.projected_directions as u64;
+        self.max_newton_iterations = self.max_newton_iterations.max(s.newton_iterations as u64);
+        self.max_cg_iterations = self.max_cg_iterations.max(s.cg_iterations as u64);
+        self.last_residual = s.residual;
+        self.max_residual = self.max_residual.max(s.residual);
+    }
 }
 
 /// Everything that evolves during a run, for checkpoints: restored into a simulation
@@ -51,6 +141,8 @@ pub struct SimulationSnapshot<T: Real, const D: usize> {
     pub reference_updates: u64,
     /// Stored reference state (total-Lagrangian and adaptive only).
     pub lagrangian: Option<LagrangianSnapshot<T, D>>,
+    /// Implicit-solver statistics so far.
+    pub solver: SolverTotals,
 }
 
 /// A snapshot that does not fit the simulation it is restored into.
@@ -82,6 +174,13 @@ pub struct Simulation<T: Real, const D: usize, K: Kernel, L: GridLayout> {
     pub reference_updates: u64,
     /// The stepper (grid and work buffers) the reference needs.
     pub stepper: Stepper<T, D, K, L>,
+    /// Time integrator.
+    pub integrator: Integrator,
+    /// Newton and CG tolerances and caps (implicit integrators).
+    pub newton: NewtonSettings,
+    /// Implicit-solver statistics so far.
+    pub solver: SolverTotals,
+    implicit: Option<Box<GridSolve<T, D>>>,
     wave_speed: T,
     kinematic_viscosity: T,
 }
@@ -130,6 +229,10 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Simulation<T, D, K, L> {
             reference: Reference::Eulerian(crate::Eulerian),
             reference_updates: 0,
             stepper: Stepper::Eulerian(Box::new(ExplicitStepper::new())),
+            integrator: Integrator::Explicit,
+            newton: NewtonSettings::default(),
+            solver: SolverTotals::default(),
+            implicit: None,
             wave_speed,
             kinematic_viscosity,
         }
@@ -140,12 +243,50 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Simulation<T, D, K, L> {
         self.wave_speed
     }
 
-    /// The step size the policy gives now.
+    /// Uses `integrator` with `settings` from now on.
+    pub fn set_integrator(&mut self, integrator: Integrator, settings: NewtonSettings) {
+        self.integrator = integrator;
+        self.newton = settings;
+        self.implicit = match integrator {
+            Integrator::Explicit => None,
+            _ => Some(Box::new(GridSolve::new())),
+        };
+    }
+
+    /// The step size the policy gives now: the CFL rule for the explicit integrator,
+    /// the particle-motion rule ([`Self::motion_dt`]) for implicit ones.
     pub fn next_dt(&self) -> f64 {
         match self.time_step {
             TimeStepPolicy::Fixed(dt) => dt,
+            TimeStepPolicy::Cfl(cfl) if self.integrator != Integrator::Explicit => {
+                self.motion_dt(cfl)
+            }
             TimeStepPolicy::Cfl(cfl) => self.cfl_dt(cfl),
         }
+    }
+
+    /// The implicit step size: no elastic wave limit, only that a particle moves less
+    /// than the fraction `cfl` of a cell per step — at its current speed
+    /// (`Δt ≤ cfl·h/|v|max`) and starting from rest under gravity
+    /// (`½|g|Δt² ≤ cfl·h`) — and the explicit viscosity bound (viscosity stays
+    /// explicit). Infinite for a body at rest without gravity (the caller's frame
+    /// end bounds the step).
+    pub fn motion_dt(&self, cfl: f64) -> f64 {
+        let h = self.params.h.to_f64();
+        let speed = max_speed(&self.particles).to_f64();
+        let g = self.params.gravity.norm().to_f64();
+        let mut dt = f64::INFINITY;
+        if speed > 0.0 {
+            dt = dt.min(cfl * h / speed);
+        }
+        if g > 0.0 {
+            dt = dt.min((2.0 * cfl * h / g).sqrt());
+        }
+        let nu: f64 = self.kinematic_viscosity.to_f64();
+        if nu > 0.0 {
+            dt = dt.min(cfl * h * h / (2.0 * D as f64 * nu));
+        }
+        dt
     }
 
     /// The step the CFL rule with number `cfl` allows now: advective and elastic wave
@@ -169,25 +310,85 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Simulation<T, D, K, L> {
     }
 
     /// One step of at most `max_dt`; returns the step taken.
+    ///
+    /// With an implicit integrator and the automatic step, a step whose solve does
+    /// not converge within its caps is retried with half the step (up to 12 times;
+    /// the solve changes no particle state before it converges), and the cap so
+    /// found grows back by 25 % per successful step.
     pub fn step(&mut self, max_dt: f64) -> Result<f64, SimulationError> {
-        let dt = self.next_dt().min(max_dt);
+        let adaptive = self.integrator != Integrator::Explicit
+            && matches!(self.time_step, TimeStepPolicy::Cfl(_));
+        let mut dt = self.next_dt().min(max_dt);
+        if adaptive {
+            dt = dt.min(self.solver.dt_cap);
+        }
+        let mut retries = 0;
+        loop {
+            match self.try_step(dt) {
+                Err(e) if adaptive && retries < 12 && matches!(e.source, StepFailure::Solve(_)) => {
+                    retries += 1;
+                    self.steps -= 1;
+                    self.solver.retried_steps += 1;
+                    dt *= 0.5;
+                    self.solver.dt_cap = dt;
+                }
+                Err(e) => return Err(e),
+                Ok(dt) => {
+                    if adaptive && self.solver.dt_cap.is_finite() {
+                        self.solver.dt_cap *= 1.25;
+                    }
+                    return Ok(dt);
+                }
+            }
+        }
+    }
+
+    /// One step of exactly `dt`.
+    fn try_step(&mut self, dt: f64) -> Result<f64, SimulationError> {
         self.params.dt = T::lit(dt);
         self.params.time = T::lit(self.time);
-        let result = match &mut self.stepper {
-            Stepper::Eulerian(st) => st.step(
-                &mut self.particles,
-                &self.materials,
-                &self.transfer,
-                &self.params,
-            ),
-            Stepper::Lagrangian(st) => st
+        let result: Result<(), StepFailure> = match (&mut self.stepper, &mut self.implicit) {
+            (Stepper::Eulerian(st), None) => st
+                .step(
+                    &mut self.particles,
+                    &self.materials,
+                    &self.transfer,
+                    &self.params,
+                )
+                .map_err(StepFailure::from),
+            (Stepper::Lagrangian(st), None) => st
                 .step(
                     &mut self.particles,
                     &self.materials,
                     &self.reference,
                     &self.params,
                 )
-                .map(|_| ()),
+                .map(|_| ())
+                .map_err(StepFailure::from),
+            (Stepper::Eulerian(st), Some(solve)) => implicit_eulerian_step(
+                st,
+                solve,
+                &mut self.particles,
+                &self.materials,
+                &self.transfer,
+                &self.params,
+                self.integrator,
+                &self.newton,
+            )
+            .map(|stats| self.solver.add(&stats))
+            .map_err(StepFailure::from),
+            (Stepper::Lagrangian(st), Some(solve)) => st
+                .step_implicit(
+                    &mut self.particles,
+                    &self.materials,
+                    &self.reference,
+                    &self.params,
+                    solve,
+                    self.integrator,
+                    &self.newton,
+                )
+                .map(|(_, stats)| self.solver.add(&stats))
+                .map_err(StepFailure::from),
         };
         self.steps += 1;
         if let Err(source) = result {
@@ -288,6 +489,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Simulation<T, D, K, L> {
                 Stepper::Eulerian(_) => None,
                 Stepper::Lagrangian(st) => Some(st.snapshot()),
             },
+            solver: self.solver,
         }
     }
 
@@ -329,6 +531,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Simulation<T, D, K, L> {
         self.time = snapshot.time;
         self.steps = snapshot.steps;
         self.reference_updates = snapshot.reference_updates;
+        self.solver = snapshot.solver;
         Ok(())
     }
 

@@ -58,6 +58,7 @@
 use crate::reference::ReferenceConfig;
 use mpm_constitutive::{Material, StateMut};
 use mpm_grid::{BlockSparseGrid, Collider, GridLayout, BLOCK};
+use mpm_implicit::{GridSolve, ImplicitStepError, Integrator, NewtonSettings, SolveStats};
 use mpm_kernels::{Kernel, Stencil};
 use mpm_math::{determinant, try_inverse, Matrix, Real, Vector};
 use mpm_transfer::{
@@ -406,7 +407,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
             self.rebuild(particles, params.h)?;
         }
         let t1 = Instant::now();
-        self.particle_to_grid(particles, materials, params.dt, params.h);
+        self.particle_to_grid(particles, materials, params.dt, params.h, true);
         let t2 = Instant::now();
         self.grid_update(params);
         let t3 = Instant::now();
@@ -423,12 +424,144 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
         Ok(false)
     }
 
+    /// One implicit step (backward Euler on the reference lattice's velocities,
+    /// `mpm-implicit`): P2G of mass, momentum and positions without elastic force,
+    /// `v̂ = p/m + Δt g`, the Newton solve with colliders acting at the current nodal
+    /// positions `q_i` and the deformation operator of eq. 30–32
+    /// ([`Self::fill_deformation_stencils`]), the contact pass between bodies, then
+    /// the same G2P and reference criterion as the explicit step.
+    #[allow(clippy::too_many_arguments)]
+    pub fn step_implicit<R: ReferenceConfig>(
+        &mut self,
+        particles: &mut Particles<T, D>,
+        materials: &[Material<T>],
+        reference: &R,
+        params: &StepParams<T, D>,
+        solve: &mut GridSolve<T, D>,
+        integrator: Integrator,
+        settings: &NewtonSettings,
+    ) -> Result<(bool, SolveStats), ImplicitStepError> {
+        if !self.built || self.state.position.len() != particles.len() {
+            self.rebuild(particles, params.h)?;
+        }
+        let (dt, h) = (params.dt, params.h);
+        let t1 = Instant::now();
+        self.particle_to_grid(particles, materials, dt, h, false);
+        let t2 = Instant::now();
+        let g = params.gravity;
+        self.grid.update(|_k, _node, m, p, _| p / m + g * dt);
+        self.fill_deformation_stencils(solve, particles.len(), h);
+        solve.prepare_particles(particles, materials);
+        let colliders: &[Collider<T, D>] = if self.multi_body {
+            &[]
+        } else {
+            &params.colliders
+        };
+        let stats = solve.solve(
+            &mut self.grid,
+            particles,
+            T::lit(L::gather_weight()),
+            |_k, _node, m, q| q / m,
+            colliders,
+            params.time,
+            dt,
+            integrator,
+            settings,
+        )?;
+        if self.multi_body {
+            // Bodies meet after their implicit solves; then the colliders.
+            self.couple_bodies(h);
+            let t = params.time;
+            self.grid.for_each_node_mut(|_k, _node, m, q_moment, v| {
+                let q = q_moment / m;
+                for c in &params.colliders {
+                    *v = c.apply(&q, *v, t);
+                }
+            });
+        }
+        let t3 = Instant::now();
+        let result = self.grid_to_particle(particles, materials, params);
+        let t4 = Instant::now();
+        self.times.p2g += (t2 - t1).as_secs_f64();
+        self.times.grid_update += (t3 - t2).as_secs_f64();
+        self.times.g2p += (t4 - t3).as_secs_f64();
+        result?;
+        if reference.should_rebuild(&self.delta_j) {
+            self.rebuild(particles, h)?;
+            return Ok((true, stats));
+        }
+        Ok((false, stats))
+    }
+
+    /// The deformation operator of eq. 30–32 on the stored stencils: the current
+    /// velocity gradient G2P applies is `L_p = G_p (Fˢⁿ)⁻¹` with
+    /// `G_p = γ Σ_i W (v_i − v_p) rᵀ K_p` and `v_p = γ Σ_i W v_i`, so
+    /// `a_ip = γ W_ip (Fˢⁿ)⁻ᵀ K_p (r_ip − r̄_p)`, `r̄_p = γ Σ_i W_ip r_ip` (MLS), and
+    /// `a_ip = γ (Fˢⁿ)⁻ᵀ ∇_X W_ip` for the kernel-MPM variant. Requires P2G first.
+    pub fn fill_deformation_stencils(&self, solve: &mut GridSolve<T, D>, n: usize, h: T) {
+        let inv_h = T::one() / h;
+        let gw = T::lit(L::gather_weight());
+        let npp = Self::nodes_per_particle();
+        let per_grid = npp / L::GRIDS;
+        let grid = &self.grid;
+        let homes = grid.home_of_sorted();
+        let st = &self.state;
+        let lanes = &self.lanes;
+        let kernel_mpm = self.kernel_mpm.is_some();
+        let op = solve.stencils_mut(n, npp, grid.node_count());
+        let (nodes, vectors) = op.stencil_buffers_mut();
+        nodes
+            .par_chunks_mut(npp)
+            .zip(vectors.par_chunks_mut(npp))
+            .enumerate()
+            .for_each(|(p, (ns, vs))| {
+                let view = grid.gather_view(homes[p] as usize);
+                let lane = lanes.get(p).copied().unwrap_or(0);
+                let w = &st.weights[p * npp..(p + 1) * npp];
+                let fsn_inv_t = try_inverse(&st.relative_deformation[p])
+                    .map_or(Matrix::<T, D>::identity(), |f| f.transpose());
+                let kp = st.moment_inverse[p];
+                let mut offsets = [Vector::<T, D>::zeros(); 2 * 64];
+                let mut first_moment = Vector::<T, D>::zeros();
+                for k in 0..L::GRIDS {
+                    let (mut base, frac) = geometry::<T, D, K, L>(&st.position[p], inv_h, k);
+                    base[0] += lane;
+                    for q in 0..per_grid {
+                        let mut node = base;
+                        let mut r = Vector::<T, D>::zeros();
+                        let mut rem = q;
+                        for a in 0..D {
+                            let j = rem % K::NODES_PER_AXIS;
+                            rem /= K::NODES_PER_AXIS;
+                            node[a] += j as i32;
+                            r[a] = (T::lit(j as f64) - frac[a]) * h;
+                        }
+                        let e = k * per_grid + q;
+                        ns[e] = view.index(k, &node) as u32;
+                        offsets[e] = r;
+                        first_moment += r * w[e];
+                    }
+                }
+                first_moment *= gw;
+                for e in 0..npp {
+                    vs[e] = if kernel_mpm {
+                        fsn_inv_t * st.gradients[p * npp + e] * gw
+                    } else {
+                        fsn_inv_t * (kp * (offsets[e] - first_moment)) * (w[e] * gw)
+                    };
+                }
+            });
+    }
+
+    /// P2G on the reference lattice; `elastic_forces = false` leaves the stress out
+    /// (the implicit step treats it implicitly).
     fn particle_to_grid(
         &mut self,
         particles: &Particles<T, D>,
         materials: &[Material<T>],
         dt: T,
         h: T,
+        elastic_forces: bool,
     ) {
         let inv_h = T::one() / h;
         let ext = BLOCK as usize + (L::GRIDS - 1) + (K::NODES_PER_AXIS - 1);
@@ -449,7 +582,11 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
                 };
                 let fsn_inv_t = try_inverse(&st.relative_deformation[i])
                     .map_or(Matrix::<T, D>::identity(), |f| f.transpose());
-                let tau = materials[p.material[i] as usize].kirchhoff_stress(&p.state(i));
+                let tau = if elastic_forces {
+                    materials[p.material[i] as usize].kirchhoff_stress(&p.state(i))
+                } else {
+                    Matrix::<T, D>::zeros()
+                };
                 // MLS: −V τ Fˢⁿ⁻ᵀ K r W; kernel-MPM: −V τ Fˢⁿ⁻ᵀ ∇_X W.
                 let stress = tau * fsn_inv_t * (-p.volume[i] * dt);
                 let force = stress * kp;

@@ -360,6 +360,10 @@ pub struct StatsRow {
     /// Gravitational potential energy `−Σ m g·x` (so that kinetic + elastic +
     /// potential is the total mechanical energy).
     pub potential_energy: f64,
+    /// Newton iterations so far (0 for the explicit integrator).
+    pub newton_iterations: u64,
+    /// Conjugate-gradient iterations so far (0 for the explicit integrator).
+    pub cg_iterations: u64,
 }
 
 /// Builds stats.csv: the header, then one row per frame. The whole text is kept so the
@@ -373,7 +377,7 @@ pub struct StatsWriter {
 /// The standard columns, in order.
 pub const STATS_HEADER: &str = "frame,time,steps,wall_seconds,particles,mass,kinetic_energy,\
 elastic_energy,momentum_x,momentum_y,momentum_z,angular_momentum_x,angular_momentum_y,\
-angular_momentum_z,max_speed,reference_updates,potential_energy";
+angular_momentum_z,max_speed,reference_updates,potential_energy,newton_iterations,cg_iterations";
 
 impl StatsWriter {
     /// `probe_names` become extra columns after the standard ones.
@@ -439,6 +443,7 @@ impl StatsWriter {
         }
         s.push_str(&format!(",{}", r.reference_updates));
         s.push_str(&format!(",{:e}", r.potential_energy));
+        s.push_str(&format!(",{},{}", r.newton_iterations, r.cg_iterations));
         for x in probe_values {
             s.push_str(&format!(",{x:e}"));
         }
@@ -699,12 +704,12 @@ mod tests {
             w.header(),
             "frame,time,steps,wall_seconds,particles,mass,kinetic_energy,elastic_energy,\
 momentum_x,momentum_y,momentum_z,angular_momentum_x,angular_momentum_y,angular_momentum_z,\
-max_speed,reference_updates,potential_energy"
+max_speed,reference_updates,potential_energy,newton_iterations,cg_iterations"
         );
         let mut w = StatsWriter::new(vec!["tip_y".into(), "left".into()]);
         assert!(w
             .header()
-            .ends_with(",reference_updates,potential_energy,tip_y,left"));
+            .ends_with(",potential_energy,newton_iterations,cg_iterations,tip_y,left"));
         let r = StatsRow {
             frame: 3,
             time: 0.06,
@@ -719,10 +724,13 @@ max_speed,reference_updates,potential_energy"
             max_speed: 12.25,
             reference_updates: 0,
             potential_energy: -2.0,
+            newton_iterations: 4,
+            cg_iterations: 310,
         };
         let row = w.row(&r, &[0.25, -1.0]);
         let fields: Vec<&str> = row.split(',').collect();
-        assert_eq!(fields.len(), 17 + 2);
+        assert_eq!(fields.len(), 19 + 2);
+        assert_eq!((fields[17], fields[18]), ("4", "310"));
         assert_eq!(fields.len(), w.header().split(',').count());
         // Floats round-trip exactly.
         assert_eq!(fields[0], "3");

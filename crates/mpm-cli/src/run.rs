@@ -8,8 +8,8 @@ use crate::output::{
 };
 use crate::sampling::{particle_volume, sample_body};
 use crate::scene::{
-    Boundary, ColliderSpec, GridKind, Kernel as KernelKind, MaterialSpec, ModelKind, OutputFormat,
-    Precision, Reduction, ReferenceKind, Scene, TimeStep, TransferKind,
+    Boundary, ColliderSpec, GridKind, IntegratorKind, Kernel as KernelKind, MaterialSpec,
+    ModelKind, OutputFormat, Precision, Reduction, ReferenceKind, Scene, TimeStep, TransferKind,
 };
 use mpm_aul::{Adaptive, Eulerian, Reference, Simulation, TimeStepPolicy, TotalLagrangian};
 use mpm_constitutive::{
@@ -17,6 +17,7 @@ use mpm_constitutive::{
     Material, Nacc, NeoHookean, Snow, StateNeeds, VonMises,
 };
 use mpm_grid::{domain_walls, Collider, ColliderShape, ContactKind, Dual, GridLayout, Single};
+use mpm_implicit::{Integrator, NewtonSettings};
 use mpm_kernels::{Compact, CubicBSpline, Kernel, Linear, QuadraticBSpline};
 use mpm_math::{determinant, Real, Vector};
 use mpm_transfer::{Apic, Flip, Mls, Particles, Pic, Transfer, TransferScheme};
@@ -470,6 +471,37 @@ pub fn build_simulation<T: Real, const D: usize, K: Kernel, L: GridLayout>(
         }),
     });
     sim.set_bodies(body_of.clone());
+    let integrator = match s.integrator {
+        IntegratorKind::Explicit => Integrator::Explicit,
+        IntegratorKind::SemiImplicit => Integrator::SemiImplicit,
+        IntegratorKind::Implicit => Integrator::Implicit,
+    };
+    sim.set_integrator(
+        integrator,
+        NewtonSettings {
+            newton_tolerance: s.newton_tolerance,
+            max_newton_iterations: s.newton_max_iterations,
+            cg_tolerance: s.cg_tolerance,
+            max_cg_iterations: s.cg_max_iterations,
+        },
+    );
+    if let (Integrator::Explicit, TimeStep::Fixed(dt)) = (integrator, s.dt) {
+        // The explicit step is stable only while an elastic wave crosses less than a
+        // cell per step: refuse a fixed step beyond `h / c` up front (particle speed
+        // is checked as the run goes: a particle moving more than a cell stops it).
+        let c = sim.wave_speed().to_f64();
+        let limit = s.h / c;
+        if c > 0.0 && dt > limit {
+            return Err(RunError::Scene {
+                origin: origin.to_string(),
+                key: "simulation.dt".into(),
+                message: format!(
+                    "{dt:e} s is beyond the explicit stability limit h / c = {limit:.3e} s (elastic wave speed c = {c:.4e} m/s), {ratio:.1}× too large: the explicit step would be unstable. Use `simulation.integrator = \"implicit\"` (or \"semi-implicit\"), stable at any step, or lower `simulation.dt` to at most {limit:.3e} s, or set `simulation.dt = \"auto\"`",
+                    ratio = dt / limit,
+                ),
+            });
+        }
+    }
     Ok((sim, body_of))
 }
 
@@ -678,6 +710,8 @@ fn run_typed<T: Real, const D: usize, K: Kernel, L: GridLayout>(
             max_speed: t.max_speed,
             reference_updates: sim.reference_updates,
             potential_energy: potential_energy(&sim.particles, &gravity),
+            newton_iterations: sim.solver.newton_iterations,
+            cg_iterations: sim.solver.cg_iterations,
         };
         stats.push(&row, &probe_values(scene, &sim.particles, &body_of));
         stats.write(&stats_path).map_err(io_err(&stats_path))?;
@@ -768,10 +802,14 @@ pub(crate) fn diagnose(
     body_of: &[u16],
     cfl_dt: f64,
 ) -> (String, String) {
+    use mpm_aul::StepFailure;
+    use mpm_implicit::SolveError;
     use mpm_transfer::StepError;
     let s = &scene.simulation;
-    let body = body_of
-        .get(e.source.particle() as usize)
+    let body = e
+        .source
+        .particle()
+        .and_then(|p| body_of.get(p as usize))
         .map(|&b| b as usize);
     let spec = body.and_then(|b| scene.body.get(b).map(|spec| (b, spec)));
     let detail = match spec {
@@ -781,6 +819,7 @@ pub(crate) fn diagnose(
         ),
         None => e.to_string(),
     };
+    let explicit = s.integrator == IntegratorKind::Explicit;
     let step_size = match s.dt {
         TimeStep::Auto => format!(
             "lower `simulation.cfl` (now {}; try {})",
@@ -792,6 +831,11 @@ pub(crate) fn diagnose(
             s.cfl
         ),
     };
+    let implicit_hint = if explicit {
+        " For stiff materials, `simulation.integrator = \"implicit\"` is stable at much larger steps."
+    } else {
+        ""
+    };
     let ppc = spec.map_or("`body.N.particles_per_cell`".to_string(), |(b, spec)| {
         format!(
             "`body.{b}.particles_per_cell` (now {}; try {})",
@@ -799,21 +843,42 @@ pub(crate) fn diagnose(
             spec.particles_per_cell * 2
         )
     });
+    let what = if explicit { "explicit" } else { "implicit" };
     let suggestion = match &e.source {
-        StepError::NonFinite { .. } | StepError::TooFast { .. } => format!(
-            "The explicit step went unstable: {step_size}, or stiffen less abruptly (check `youngs_modulus` and the initial velocities)."
+        StepFailure::Particle(StepError::NonFinite { .. } | StepError::TooFast { .. }) => format!(
+            "The {what} step went unstable: {step_size}, or stiffen less abruptly (check `youngs_modulus` and the initial velocities).{implicit_hint}"
         ),
-        StepError::LeftDomain { .. } => format!(
+        StepFailure::Particle(StepError::LeftDomain { .. }) => format!(
             "A particle crossed the domain walls: {step_size}, or enlarge `simulation.domain_min`/`domain_max` so the walls are farther from the motion."
         ),
-        StepError::Inverted { model, .. } => format!(
+        StepFailure::Particle(StepError::Inverted { model, .. }) => format!(
             "The {model} model cannot take an inverted element (det F ≤ 0): {step_size}; use more particles per cell, {ppc}; or use `fixed-corotated`, which handles inversion."
         ),
-        StepError::Collapsed { .. } => format!(
+        StepFailure::Particle(StepError::Collapsed { .. }) => format!(
             "A fluid particle's volume collapsed (J ≤ 0): {step_size}; use more particles per cell, {ppc}; or raise the `bulk_modulus` so the fluid resists compression."
+        ),
+        StepFailure::Solve(SolveError::CgNotConverged { .. }) => format!(
+            "Raise `simulation.cg_max_iterations` (now {}) or `simulation.cg_tolerance` (now {:e}), or {step_size}: a shorter step makes the system better conditioned.",
+            s.cg_max_iterations, s.cg_tolerance
+        ),
+        StepFailure::Solve(SolveError::NewtonNotConverged { .. }) => format!(
+            "Raise `simulation.newton_max_iterations` (now {}) or `simulation.newton_tolerance` (now {:e}), or {step_size}.",
+            s.newton_max_iterations, s.newton_tolerance
+        ),
+        StepFailure::Solve(SolveError::LineSearchFailed { .. } | SolveError::InadmissibleStart) => format!(
+            "The solve cannot lower the step's energy from there: {step_size}, or use `fixed-corotated`, which is defined for inverted elements."
         ),
     };
     (detail, suggestion)
+}
+
+/// Scene-file name of an integrator.
+fn integrator_name(i: Integrator) -> &'static str {
+    match i {
+        Integrator::Explicit => "explicit",
+        Integrator::SemiImplicit => "semi-implicit",
+        Integrator::Implicit => "implicit",
+    }
 }
 
 fn progress_bar(enabled: bool, frames: u64) -> Option<indicatif::ProgressBar> {
@@ -869,6 +934,13 @@ fn summary_json<T: Real, const D: usize, K: Kernel, L: GridLayout>(
             "active_nodes": sim.grid().node_count(),
             "active_blocks": sim.grid().block_count(),
             "bytes": sim.grid().heap_bytes(),
+        },
+        "integrator": {
+            "kind": integrator_name(sim.integrator),
+            "newton": sim.newton,
+            "solver": sim.solver,
+            "mean_newton_iterations_per_step": if sim.solver.steps > 0 { sim.solver.newton_iterations as f64 / sim.solver.steps as f64 } else { 0.0 },
+            "mean_cg_iterations_per_step": if sim.solver.steps > 0 { sim.solver.cg_iterations as f64 / sim.solver.steps as f64 } else { 0.0 },
         },
         "frames_written": frames + 1,
         "steps": sim.steps,

@@ -113,8 +113,33 @@ pub struct Simulation {
     pub adaptive_eta: f64,
     #[serde(default)]
     pub integrator: IntegratorKind,
+    /// Implicit integrators: Newton stops at this relative residual.
+    #[serde(default = "default_newton_tolerance")]
+    pub newton_tolerance: f64,
+    /// Implicit: most Newton iterations per step.
+    #[serde(default = "default_newton_max_iterations")]
+    pub newton_max_iterations: usize,
+    /// Semi-implicit and implicit: CG stops at this relative residual.
+    #[serde(default = "default_cg_tolerance")]
+    pub cg_tolerance: f64,
+    /// Most CG iterations per Newton iteration.
+    #[serde(default = "default_cg_max_iterations")]
+    pub cg_max_iterations: usize,
     #[serde(default)]
     pub boundary: Boundary,
+}
+
+fn default_newton_tolerance() -> f64 {
+    mpm_implicit::NewtonSettings::default().newton_tolerance
+}
+fn default_newton_max_iterations() -> usize {
+    mpm_implicit::NewtonSettings::default().max_newton_iterations
+}
+fn default_cg_tolerance() -> f64 {
+    mpm_implicit::NewtonSettings::default().cg_tolerance
+}
+fn default_cg_max_iterations() -> usize {
+    mpm_implicit::NewtonSettings::default().max_cg_iterations
 }
 
 fn default_dim() -> usize {
@@ -1256,13 +1281,28 @@ impl Scene {
                 ));
             }
         }
-        match s.integrator {
-            IntegratorKind::Explicit => {}
-            IntegratorKind::SemiImplicit => {
-                return Err(c.not_supported("simulation.integrator", "semi-implicit"))
+        for (key, value) in [
+            ("simulation.newton_tolerance", s.newton_tolerance),
+            ("simulation.cg_tolerance", s.cg_tolerance),
+        ] {
+            if !(value > 0.0 && value < 1.0) {
+                return Err(c.err(
+                    key,
+                    format!("{value} is out of range"),
+                    "A relative residual tolerance: 0 < tolerance < 1 (e.g. 1e-6)",
+                ));
             }
-            IntegratorKind::Implicit => {
-                return Err(c.not_supported("simulation.integrator", "implicit"))
+        }
+        for (key, value) in [
+            ("simulation.newton_max_iterations", s.newton_max_iterations),
+            ("simulation.cg_max_iterations", s.cg_max_iterations),
+        ] {
+            if value == 0 || value > 1_000_000 {
+                return Err(c.err(
+                    key,
+                    format!("{value} is out of range"),
+                    "An iteration cap: 1 to 1000000",
+                ));
             }
         }
 
@@ -2082,8 +2122,7 @@ normal = [0.0, 1.0]
     }
 
     #[test]
-    fn unsupported_features_say_so() {
-        let ns = "not supported yet";
+    fn unsupported_combinations_say_so() {
         bad(
             FULL_3D,
             &[
@@ -2093,15 +2132,41 @@ normal = [0.0, 1.0]
             ],
             &["simulation.grid", "singular"],
         );
+    }
+
+    #[test]
+    fn implicit_integrators_and_their_solver_keys() {
+        for (name, kind) in [
+            ("implicit", IntegratorKind::Implicit),
+            ("semi-implicit", IntegratorKind::SemiImplicit),
+        ] {
+            let s = parse(FULL_3D, &[&format!("simulation.integrator={name}")]).unwrap();
+            assert_eq!(s.simulation.integrator, kind);
+        }
+        let s = parse(
+            FULL_3D,
+            &[
+                "simulation.newton_tolerance=1e-8",
+                "simulation.cg_max_iterations=50",
+            ],
+        )
+        .unwrap();
+        assert_eq!(s.simulation.newton_tolerance, 1e-8);
+        assert_eq!(s.simulation.cg_max_iterations, 50);
         bad(
             FULL_3D,
-            &["simulation.integrator=implicit"],
-            &["simulation.integrator", ns],
+            &["simulation.newton_tolerance=0"],
+            &["simulation.newton_tolerance", "0 < tolerance < 1"],
         );
         bad(
             FULL_3D,
-            &["simulation.integrator=semi-implicit"],
-            &["simulation.integrator", ns],
+            &["simulation.cg_tolerance=2"],
+            &["simulation.cg_tolerance", "0 < tolerance < 1"],
+        );
+        bad(
+            FULL_3D,
+            &["simulation.newton_max_iterations=0"],
+            &["simulation.newton_max_iterations", "1 to 1000000"],
         );
     }
 

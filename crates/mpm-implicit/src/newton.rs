@@ -233,6 +233,32 @@ fn residual_norm<T: Real, const D: usize>(
     num.sqrt() / scale
 }
 
+/// Round-off bound of `E(v)` (see the line search): `16 ε (Σ_p V_p |P_p| |F_p| +
+/// Σ_i m_i |v_i| |v_i − v̂_i| + |E|)`, with `stress` holding `Δt V_p P_p`.
+fn energy_noise<T: Real, const D: usize>(
+    problem: &BackwardEuler<'_, T, D>,
+    v: &[Vector<T, D>],
+    f: &[Matrix<T, D>],
+    stress: &[Matrix<T, D>],
+    energy: f64,
+) -> f64 {
+    let dt = problem.dt.to_f64();
+    let elastic: f64 = stress
+        .iter()
+        .zip(f)
+        .map(|(s, f)| s.norm().to_f64() * f.norm().to_f64())
+        .sum::<f64>()
+        / dt;
+    let kinetic: f64 = (0..v.len())
+        .map(|i| {
+            problem.masses[i].to_f64()
+                * v[i].norm().to_f64()
+                * (v[i] - problem.target[i]).norm().to_f64()
+        })
+        .sum();
+    16.0 * T::EPSILON.to_f64() * (elastic + kinetic + energy.abs())
+}
+
 impl<T: Real, const D: usize> NewtonSolver<T, D> {
     /// A solver with empty buffers.
     pub fn new() -> Self {
@@ -307,13 +333,23 @@ impl<T: Real, const D: usize> NewtonSolver<T, D> {
         );
         let outcome = match result {
             Ok(info) => Some(info.iter_count),
-            Err(CgError::NoConvergence { rel_residual, .. }) => {
+            Err(CgError::NoConvergence { .. }) => {
+                // faer reports the initial residual here: measure the final one.
+                let mut ax = Col::<f64>::zeros(dim);
+                let mut none = MemBuffer::new(StackReq::EMPTY);
+                op.apply(
+                    ax.as_mat_mut(),
+                    sol.as_mat(),
+                    Par::Seq,
+                    MemStack::new(&mut none),
+                );
+                let r = (&rhs - &ax).norm_l2() / rhs.norm_l2().max(f64::MIN_POSITIVE);
                 return Err(SolveError::CgNotConverged {
                     newton_iteration,
                     iterations: settings.max_cg_iterations,
-                    residual: rel_residual,
+                    residual: r,
                     tolerance: settings.cg_tolerance,
-                })
+                });
             }
             Err(_) => None,
         };
@@ -409,9 +445,12 @@ impl<T: Real, const D: usize> NewtonSolver<T, D> {
                 .zip(&self.direction)
                 .map(|(g, d)| g.dot(d).to_f64())
                 .sum();
-            // The energy's own round-off: below it Armijo cannot tell a decrease.
-            let roundoff = 1e-14 * energy.abs() * ((np + n) as f64).sqrt();
-            let resolvable = -slope > roundoff;
+            // Below the energy's own round-off Armijo cannot tell a decrease. Each
+            // term's absolute error is about ε times its first-order size:
+            // `V_p |P_p| |F_p|` for Ψ (whose `F − R` cancels: at strain s its relative
+            // error is ε/s) and `m_i |v_i| |v_i − v̂_i|` for the kinetic part.
+            let noise = energy_noise(problem, v, &self.deformation, &self.stress, energy);
+            let resolvable = -slope > noise;
             let mut alpha = 1.0f64;
             let mut accepted = false;
             for _ in 0..40 {
@@ -434,11 +473,21 @@ impl<T: Real, const D: usize> NewtonSolver<T, D> {
                         energy = e;
                         break;
                     }
-                    // At the round-off floor the Newton step is taken whole when its
-                    // energy is equal to round-off (shortening it cannot help).
-                    Some(e) if !resolvable && e <= energy + roundoff => {
-                        accepted = true;
-                        energy = e;
+                    // At the round-off floor the energy cannot judge the step: the
+                    // Newton step is taken whole if its energy is equal within the
+                    // noise and it lowers the residual (the gradient has no such
+                    // cancellation).
+                    Some(e) if !resolvable && e <= energy + noise => {
+                        problem.gradient(
+                            &self.trial,
+                            &self.deformation,
+                            &mut self.stress,
+                            &mut self.gradient,
+                        );
+                        accepted = residual_norm(problem, &self.trial, &self.gradient) < residual;
+                        if accepted {
+                            energy = e;
+                        }
                         break;
                     }
                     _ if !resolvable => break,
