@@ -441,17 +441,10 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
         integrator: Integrator,
         settings: &NewtonSettings,
     ) -> Result<(bool, SolveStats), ImplicitStepError> {
-        if !self.built || self.state.position.len() != particles.len() {
-            self.rebuild(particles, params.h)?;
-        }
-        let (dt, h) = (params.dt, params.h);
         let t1 = Instant::now();
-        self.particle_to_grid(particles, materials, dt, h, false);
+        self.prepare_implicit(particles, materials, params, solve)?;
         let t2 = Instant::now();
-        let g = params.gravity;
-        self.grid.update(|_k, _node, m, p, _| p / m + g * dt);
-        self.fill_deformation_stencils(solve, particles.len(), h);
-        solve.prepare_particles(particles, materials);
+        let (dt, h) = (params.dt, params.h);
         let colliders: &[Collider<T, D>] = if self.multi_body {
             &[]
         } else {
@@ -491,6 +484,43 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
             return Ok((true, stats));
         }
         Ok((false, stats))
+    }
+
+    /// Everything an implicit step does before Newton: the reference (built if
+    /// needed), P2G of mass, momentum and positions without elastic force, the
+    /// prediction `v̂ = p/m + Δt g` in the grid velocities, the deformation operator
+    /// ([`Self::fill_deformation_stencils`]) and `solve`'s node data (masses,
+    /// prediction, collider constraints at `q_i`). For tests, [`GridSolve::problem`]
+    /// then gives the backward-Euler problem of this step.
+    pub fn prepare_implicit(
+        &mut self,
+        particles: &mut Particles<T, D>,
+        materials: &[Material<T>],
+        params: &StepParams<T, D>,
+        solve: &mut GridSolve<T, D>,
+    ) -> Result<(), StepError> {
+        if !self.built || self.state.position.len() != particles.len() {
+            self.rebuild(particles, params.h)?;
+        }
+        let (dt, h) = (params.dt, params.h);
+        self.particle_to_grid(particles, materials, dt, h, false);
+        let g = params.gravity;
+        self.grid.update(|_k, _node, m, p, _| p / m + g * dt);
+        self.fill_deformation_stencils(solve, particles.len(), h);
+        solve.prepare_particles(particles, materials);
+        let colliders: &[Collider<T, D>] = if self.multi_body {
+            &[]
+        } else {
+            &params.colliders
+        };
+        solve.set_up_nodes(
+            &self.grid,
+            T::lit(L::gather_weight()),
+            |_k, _node, m, q| q / m,
+            colliders,
+            params.time,
+        );
+        Ok(())
     }
 
     /// The deformation operator of eq. 30–32 on the stored stencils: the current

@@ -15,6 +15,9 @@ pub struct Sparsity {
     pub mean_per_row: f64,
     /// Most non-zeros in a row.
     pub max_per_row: usize,
+    /// Stored non-zeros over those rows (the matrix's size in memory and the work of
+    /// one product: the dual grid has more rows than a single grid).
+    pub total: usize,
 }
 
 /// Assembles `Π H Π + (I − Π)` (duplicates summed) as a `D·N × D·N` sparse matrix.
@@ -57,5 +60,6 @@ pub fn sparsity(
             total as f64 / rows.len() as f64
         },
         max_per_row: rows.iter().map(|&r| per_row[r]).max().unwrap_or(0),
+        total,
     }
 }
