@@ -11,7 +11,7 @@ use common::{blob, material, set_up, Model, Noise};
 use mpm_grid::{Dual, GridLayout, Single};
 use mpm_implicit::sparse::assemble_hessian;
 use mpm_implicit::{BackwardEuler, Tangents};
-use mpm_kernels::{Compact, Kernel, QuadraticBSpline};
+use mpm_kernels::{Compact, CubicBSpline, Kernel, Linear, QuadraticBSpline};
 use mpm_math::{Matrix, Vector};
 use mpm_transfer::{Apic, Mls, Transfer, TransferScheme};
 
@@ -149,6 +149,14 @@ fn derivatives_quadratic_mls_3d() {
 #[test]
 fn derivatives_quadratic_apic_2d() {
     check_derivatives::<2, QuadraticBSpline, Single>(Transfer::Apic(Apic));
+}
+/// The other stencils: cubic (MLS), linear and the compact kernel on one grid (both
+/// in gradient form, PIC).
+#[test]
+fn derivatives_other_kernels_and_layouts_2d() {
+    check_derivatives::<2, CubicBSpline, Single>(Transfer::Mls(Mls));
+    check_derivatives::<2, Linear, Single>(Transfer::Pic(mpm_transfer::Pic));
+    check_derivatives::<2, Compact, Single>(Transfer::Pic(mpm_transfer::Pic));
 }
 
 /// `(A x)` for the assembled matrix.
