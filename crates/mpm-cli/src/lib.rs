@@ -4,6 +4,7 @@
 
 pub mod bench;
 pub mod checkpoint;
+pub mod extremes;
 pub mod mesh;
 pub mod output;
 pub mod plot;

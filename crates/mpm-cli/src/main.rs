@@ -45,11 +45,17 @@ enum Command {
     /// Reproduce the papers' evidence: momentum and angular momentum conservation,
     /// numerical diffusion and speed of compact vs quadratic (CK-MPM), convergence of
     /// TL and A-UL (A-ULMPM); each with our number, the paper's and PASS/FAIL, in
-    /// OUT/verify.md with plots. Exit status 1 if a check fails.
+    /// OUT/verify.md with plots. Exit status 1 if a check fails. With --extremes: the
+    /// stability matrix (stiffness, impact speed, dt, resolution × 2-D/3-D × explicit/
+    /// implicit × compact/quadratic) in OUT/extremes.md.
     Verify {
         /// Reduced sizes: under 3 minutes on 2 cores.
         #[arg(long)]
         quick: bool,
+        /// The stability matrix instead of the papers' checks (with --quick: 2-D, and
+        /// 3-D up to 16 cells across).
+        #[arg(long)]
+        extremes: bool,
         /// Only these checks (comma-separated names or prefixes; see the report).
         #[arg(long, value_delimiter = ',')]
         only: Vec<String>,
@@ -325,6 +331,7 @@ fn main() -> ExitCode {
         }
         Command::Verify {
             quick,
+            extremes,
             only,
             out,
             threads,
@@ -336,6 +343,62 @@ fn main() -> ExitCode {
                     return ExitCode::FAILURE;
                 }
             };
+            if extremes {
+                let out = out.unwrap_or_else(|| {
+                    PathBuf::from(if quick {
+                        "out/extremes-quick"
+                    } else {
+                        "out/extremes"
+                    })
+                });
+                let cells = mpm_cli::extremes::matrix(quick);
+                println!(
+                    "mpm verify --extremes: {} cells of {} steps{}",
+                    cells.len(),
+                    mpm_cli::extremes::STEPS,
+                    if quick {
+                        ""
+                    } else {
+                        " (the 2-D 256-cell implicit cells take longest: tens of minutes in all)"
+                    }
+                );
+                let threads = pool.current_num_threads();
+                let result = pool.install(|| {
+                    mpm_cli::extremes::run_matrix(&cells, &out, threads, |c, o, s| {
+                        println!(
+                            "{}-D {:<8} {:<9} E {:<8.1e} v {:<5} dt {:<4}× cells {:<4} {:<9} ({s:.1} s)",
+                            c.dim, c.integrator, c.kernel, c.youngs_modulus, c.speed, c.dt_factor, c.cells, o.word()
+                        );
+                    })
+                });
+                return match result {
+                    Ok(results) => {
+                        let bad = results
+                            .iter()
+                            .filter(|(_, o, _)| {
+                                matches!(o, mpm_cli::extremes::Outcome::Unstable(_))
+                            })
+                            .count();
+                        println!(
+                            "{} cells: {} stable, {} refused, {} stopped, {bad} unstable; report {}",
+                            results.len(),
+                            results.iter().filter(|(_, o, _)| o.word() == "stable").count(),
+                            results.iter().filter(|(_, o, _)| o.word() == "refused").count(),
+                            results.iter().filter(|(_, o, _)| o.word() == "stopped").count(),
+                            out.join("extremes.md").display()
+                        );
+                        if bad == 0 {
+                            ExitCode::SUCCESS
+                        } else {
+                            ExitCode::FAILURE
+                        }
+                    }
+                    Err(e) => {
+                        eprintln!("error: {e}");
+                        ExitCode::FAILURE
+                    }
+                };
+            }
             let out = out.unwrap_or_else(|| mpm_cli::verify::default_out(quick));
             if !quick {
                 println!("mpm verify at the papers' sizes: about an hour on 2 cores (use --quick for a 3-minute version)");

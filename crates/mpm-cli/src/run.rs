@@ -753,8 +753,13 @@ fn run_typed<T: Real, const D: usize, K: Kernel, L: GridLayout>(
             }
         });
         if let Err(e) = stepped {
-            let (detail, suggestion) =
-                diagnose(scene, &e, &body_of, sim.cfl_dt(scene.simulation.cfl));
+            // The step the automatic rule would take now: motion-limited for the
+            // implicit integrators, the CFL rule for the explicit one.
+            let auto_dt = match sim.integrator {
+                Integrator::Explicit => sim.cfl_dt(scene.simulation.cfl),
+                _ => sim.motion_dt(scene.simulation.cfl),
+            };
+            let (detail, suggestion) = diagnose(scene, &e, &body_of, auto_dt);
             outcome = Err(RunError::Simulation {
                 origin: opts.origin.clone(),
                 detail,
@@ -827,7 +832,8 @@ pub(crate) fn diagnose(
             s.cfl / 2.0
         ),
         TimeStep::Fixed(fixed) => format!(
-            "lower `simulation.dt` (now {fixed:e} s), or set `simulation.dt = \"auto\"` to follow the CFL condition (with `cfl = {}` it allows {cfl_dt:.3e} s at the current velocities)",
+            "lower `simulation.dt` (now {fixed:e} s), or set `simulation.dt = \"auto\"` to follow the {} (with `cfl = {}` it allows {cfl_dt:.3e} s at the current velocities)",
+            if explicit { "CFL condition" } else { "particle-motion limit" },
             s.cfl
         ),
     };
