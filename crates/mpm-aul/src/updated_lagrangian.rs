@@ -450,7 +450,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
         } else {
             &params.colliders
         };
-        let stats = solve.solve(
+        let solved = solve.solve(
             &mut self.grid,
             particles,
             T::lit(L::gather_weight()),
@@ -460,7 +460,13 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
             dt,
             integrator,
             settings,
-        )?;
+        );
+        if solved.is_err() {
+            // A failed solve's time still counts (the driver may retry the step).
+            self.times.p2g += (t2 - t1).as_secs_f64();
+            self.times.grid_update += t2.elapsed().as_secs_f64();
+        }
+        let stats = solved?;
         if self.multi_body {
             // Bodies meet after their implicit solves; then the colliders.
             self.couple_bodies(h);

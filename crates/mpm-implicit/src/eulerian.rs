@@ -64,7 +64,7 @@ where
     let position = |k: usize, node: [i32; D], _m: T, _q: &Vector<T, D>| {
         Vector::<T, D>::from_fn(|a, _| (T::lit(node[a] as f64) + offsets[k.min(1)]) * h)
     };
-    let stats = solve.solve(
+    let solved = solve.solve(
         &mut stepper.grid,
         particles,
         T::lit(L::gather_weight()),
@@ -74,8 +74,15 @@ where
         dt,
         integrator,
         settings,
-    )?;
+    );
     let t3 = Instant::now();
+    if solved.is_err() {
+        // A failed solve's time still counts (the driver may retry the step).
+        stepper.times.sort += (t1 - t0).as_secs_f64();
+        stepper.times.p2g += (t2 - t1).as_secs_f64();
+        stepper.times.grid_update += (t3 - t2).as_secs_f64();
+    }
+    let stats = solved?;
     let result = stepper.grid_to_particle(particles, materials, scheme, params);
     let t4 = Instant::now();
     stepper.times.sort += (t1 - t0).as_secs_f64();
