@@ -758,27 +758,16 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
         &self,
         mut f: impl FnMut(usize, [i32; D], T, &Vector<T, D>, &Vector<T, D>),
     ) {
-        let npb = self.nodes_per_block;
-        let n_blocks = self.blocks.len();
         let zero = Vector::<T, D>::zeros();
-        for chunk in 0..self.grids * n_blocks {
-            let grid = chunk / n_blocks;
-            let block = self.blocks[chunk % n_blocks];
-            for l in 0..npb {
-                let i = chunk * npb + l;
-                let m = self.mass[i];
-                if m > T::zero() {
-                    let mut node = block.map(|b| b * BLOCK);
-                    let mut rem = l;
-                    for na in node.iter_mut() {
-                        *na += (rem % BLOCK as usize) as i32;
-                        rem /= BLOCK as usize;
-                    }
-                    let v = self.velocity.get(i).unwrap_or(&zero);
-                    f(grid, node, m, &self.momentum[i], v);
-                }
-            }
-        }
+        self.for_each_node_indexed(|i, grid, node, m, _| {
+            f(
+                grid,
+                node,
+                m,
+                &self.momentum[i],
+                self.velocity.get(i).unwrap_or(&zero),
+            )
+        });
     }
 }
 

@@ -274,15 +274,13 @@ impl<T: Real, const D: usize> NewtonSolver<T, D> {
         }
     }
 
-    /// `∇E · δ < 0` for the current gradient and direction.
-    fn descends(&self) -> bool {
-        let slope: f64 = self
-            .gradient
+    /// `∇E · δ` for the current gradient and direction.
+    fn slope(&self) -> f64 {
+        self.gradient
             .iter()
             .zip(&self.direction)
             .map(|(g, d)| g.dot(d).to_f64())
-            .sum();
-        slope < 0.0
+            .sum()
     }
 
     /// Solves `(Π H Π + I − Π) δ = −Π ∇E` with the current tangents by Jacobi-
@@ -422,7 +420,7 @@ impl<T: Real, const D: usize> NewtonSolver<T, D> {
             if full {
                 problem.exact_tangents(&self.deformation, &mut self.tangents);
                 match self.direction(problem, settings, it)? {
-                    (cg, true) if self.descends() => direction = Some(cg),
+                    (cg, true) if self.slope() < 0.0 => direction = Some(cg),
                     (cg, _) => stats.cg_iterations += cg,
                 }
             }
@@ -439,12 +437,7 @@ impl<T: Real, const D: usize> NewtonSolver<T, D> {
             stats.newton_iterations = it;
 
             // Step length: 1 for semi-implicit; Armijo backtracking for implicit.
-            let slope: f64 = self
-                .gradient
-                .iter()
-                .zip(&self.direction)
-                .map(|(g, d)| g.dot(d).to_f64())
-                .sum();
+            let slope = self.slope();
             // Below the energy's own round-off Armijo cannot tell a decrease. Each
             // term's absolute error is about ε times its first-order size:
             // `V_p |P_p| |F_p|` for Ψ (whose `F − R` cancels: at strain s its relative
