@@ -136,7 +136,8 @@ pub fn parse_vary(arg: &str) -> Result<(String, Vec<String>), StudyError> {
 }
 
 /// Every combination of the varied values (the first key varies slowest).
-fn combinations(vary: &[(String, Vec<String>)]) -> Vec<Vec<String>> {
+#[doc(hidden)]
+pub fn combinations(vary: &[(String, Vec<String>)]) -> Vec<Vec<String>> {
     let mut combos: Vec<Vec<String>> = vec![Vec::new()];
     for (_, values) in vary {
         combos = combos
@@ -262,7 +263,8 @@ pub(crate) fn load_run(dir: &Path) -> Result<RunData, String> {
 
 /// Nearest reference particle (by initial position) of each point: a hash grid of
 /// cell `cell`, searched ring by ring.
-fn nearest(reference: &[[f64; 3]], points: &[[f64; 3]], cell: f64) -> Vec<usize> {
+#[doc(hidden)]
+pub fn nearest(reference: &[[f64; 3]], points: &[[f64; 3]], cell: f64) -> Vec<usize> {
     let key = |p: &[f64; 3]| p.map(|c| (c / cell).floor() as i64);
     let mut grid: HashMap<[i64; 3], Vec<usize>> = HashMap::new();
     for (i, p) in reference.iter().enumerate() {
@@ -303,7 +305,8 @@ fn nearest(reference: &[[f64; 3]], points: &[[f64; 3]], cell: f64) -> Vec<usize>
 }
 
 /// `f(t)` of a piecewise-linear history at `t` (clamped at its ends).
-fn interpolate(times: &[f64], values: &[f64], t: f64) -> f64 {
+#[doc(hidden)]
+pub fn interpolate(times: &[f64], values: &[f64], t: f64) -> f64 {
     match times.iter().position(|&x| x >= t) {
         None => *values.last().unwrap_or(&f64::NAN),
         Some(0) => values[0],
@@ -315,7 +318,10 @@ fn interpolate(times: &[f64], values: &[f64], t: f64) -> f64 {
     }
 }
 
-fn rms_history(times: &[f64], values: &[f64], ref_t: &[f64], ref_v: &[f64]) -> f64 {
+/// Root-mean-square difference of a history from a reference history (interpolated at
+/// the history's times).
+#[doc(hidden)]
+pub fn rms_history(times: &[f64], values: &[f64], ref_t: &[f64], ref_v: &[f64]) -> f64 {
     let n = times.len().max(1) as f64;
     (times
         .iter()
@@ -709,38 +715,4 @@ fn pareto_plot(opts: &StudyOptions, report: &StudyReport) -> Result<(), StudyErr
     img.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
         .map_err(|e| err(e.to_string()))?;
     crate::output::write_atomic(&path, &png).map_err(|e| err(e.to_string()))
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn vary_arguments_split_outside_brackets() {
-        let (k, v) = parse_vary("body.0.velocity=[0,-1],[0, -2]").unwrap();
-        assert_eq!(k, "body.0.velocity");
-        assert_eq!(v, vec!["[0,-1]", "[0, -2]"]);
-        assert!(parse_vary("simulation.h").is_err());
-        assert!(parse_vary("simulation.h=0.1,").is_err());
-        let combos = combinations(&[
-            ("a".into(), vec!["1".into(), "2".into()]),
-            ("b".into(), vec!["x".into(), "y".into(), "z".into()]),
-        ]);
-        assert_eq!(combos.len(), 6);
-        assert_eq!(combos[1], vec!["1", "y"]);
-    }
-
-    #[test]
-    fn nearest_and_interpolation() {
-        let reference: Vec<[f64; 3]> = (0..100)
-            .map(|i| [(i % 10) as f64 * 0.1, (i / 10) as f64 * 0.1, 0.0])
-            .collect();
-        let points = [[0.31, 0.52, 0.0], [0.0, 0.0, 0.0], [5.0, 5.0, 0.0]];
-        assert_eq!(nearest(&reference, &points, 0.1), vec![53, 0, 99]);
-        let t = [0.0, 1.0, 2.0];
-        let v = [0.0, 10.0, 0.0];
-        assert_eq!(interpolate(&t, &v, 0.5), 5.0);
-        assert_eq!(interpolate(&t, &v, 3.0), 0.0);
-        assert_eq!(rms_history(&t, &v, &t, &v), 0.0);
-    }
 }
