@@ -427,12 +427,10 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Simulation<T, D, K, L> {
     /// Particle totals (mass, momentum, angular momentum with the APIC term, energies).
     ///
     /// With a Lagrangian reference the stored affine matrix `B_p = Σ W v_i r_ipᵀ` uses
-    /// the reference offsets `r_ip = X_i − X_p`; the angular momentum it carries is that
-    /// of the current offsets `Fˢⁿ r_ip`, so its moment is taken of `B_p Fˢⁿᵀ` (exact
-    /// when the nodes move affinely with the particle: `q_i = x_p + Fˢⁿ r_ip` makes
-    /// `Σ_i W q_i × m(v_p + B K r_ip) = m x_p × v_p + m ε:(B Fˢⁿᵀ)ᵀ`). Taking it of `B_p`
-    /// itself reported a drift of 4.6e-3 on the spinning plate (TL, 0.5 s) that is
-    /// 7e-5 with the current offsets.
+    /// the reference offsets; the moment the next P2G transfers about the moving nodes
+    /// is `ε:(B_p Fˢⁿᵀ)ᵀ` (`updated_lagrangian`, *Node positions*), so that is the one
+    /// reported. Taking it of `B_p` itself reported a drift of 4.6e-3 on the spinning
+    /// plate (TL, 0.5 s) that is 7e-5 with `B_p Fˢⁿᵀ`.
     pub fn totals(&self) -> Totals {
         let mut t = particle_totals::<T, D, K, L>(&self.particles, &self.materials, self.params.h);
         if let (Stepper::Lagrangian(st), true) = (&self.stepper, self.particles.stores_affine) {

@@ -7,13 +7,14 @@
 //! deformation `Fˢⁿ`. One step:
 //!
 //! 1. P2G on the reference lattice: `m_i = Σ W m_p`, `m_i v_i = Σ W m_p (v_p + B_p K_p r)`
-//!    (eq. 10–11) and the current nodal positions `q_i = Σ W m_p x_p / m_i` (eq. 12,
-//!    mass-weighted).
+//!    (eq. 10–11). The current node positions `q_i` are state of the lattice: the
+//!    lattice positions `X_i` at a rebuild, then moved by eq. 27 every step (below).
 //! 2. Force (eq. 20/23): `f_i = −Σ_p V_p P(F⁰ⁿ)(F⁰ˢ)ᵀ K_p r W`. With `F⁰ⁿ = Fˢⁿ F⁰ˢ`,
 //!    `P (F⁰ˢ)ᵀ = τ (Fˢⁿ)⁻ᵀ` (τ the Kirchhoff stress), so only `Fˢⁿ` is stored and every
 //!    material model (fluids included) enters through `τ`.
 //! 3. Grid update with gravity; colliders act at the *current* nodal position `q_i`.
-//! 4. G2P (eq. 28): `v_p = Σ W v_i`, `B_p = Σ W v_i rᵀ`; `x_p += Δt v_p`.
+//! 4. G2P (eq. 28): `v_p = Σ W v_i`, `B_p = Σ W v_i rᵀ`, `x_p += Δt v_p`, and the
+//!    nodes move: `q_i += Δt v_i` (eq. 27).
 //! 5. `Fˢⁿ⁺¹ = Fˢⁿ + Δt G`, `G = Σ W (v_i − v_p) rᵀ K_p` (eq. 30–31); the material state
 //!    advances with the current velocity gradient `G (Fˢⁿ)⁻¹`, which gives exactly
 //!    `F⁰ⁿ⁺¹ = Fˢⁿ⁺¹ F⁰ˢ` (eq. 32) and lets plasticity project `F⁰ⁿ⁺¹`.
@@ -37,8 +38,35 @@
 //! combination.
 //!
 //! **Rebuild every step** (ε = 0) reproduces the Eulerian MLS-MPM step: then
-//! `Fˢⁿ = I`, `K_p = D_p⁻¹` at the current position and `B_p` is kept across the
-//! rebuild exactly as APIC/MLS keep it.
+//! `Fˢⁿ = I`, `q_i = X_i` and `K_p = D_p⁻¹` at the current position, and the affine
+//! matrix carried across the rebuild is `B_p` itself, exactly what APIC/MLS keep (see
+//! *Rebuilds* below).
+//!
+//! **Node positions.** Eq. 12 re-rasterizes `q_i` from the particles each step, but
+//! eq. 29–30 (`Fˢⁿ⁺¹ = Σ W (q_i − x_p) rᵀ K`, updated by `Δt G`) hold only for nodes
+//! moved by eq. 27. We keep those moved nodes, reset to the lattice at each rebuild;
+//! rebuilding every step they are the Eulerian lattice nodes, so colliders act as in
+//! the Eulerian step. Two identities then hold to round-off (`Σ W = 1`, `Σ W r = 0`,
+//! fixed weights): `Σ_i W q_i = x_p` and `Σ_i W (q_i − x_p) rᵀ K = Fˢⁿ`. The second
+//! makes the forces torque-free about the moving nodes: `Σ_i q_i × f_i =
+//! −V ε : (τ Fˢⁿ⁻ᵀ K Σ W r (q − x)ᵀ)ᵀ = −V ε : τ = 0`.
+//!
+//! **Angular momentum** is not conserved to round-off. The P2G transfers the moment
+//! `ε:(B Fˢⁿᵀ)ᵀ` per particle (from the identity above), while G2P receives
+//! `Σ W (q_i − x_p) × v_i`, which also contains the nodes' non-affine offsets
+//! `q_i − x_p − Fˢⁿ r`. Storing `B = Σ W v (q − x)ᵀ Fˢⁿ⁺¹⁻ᵀ`, which closes that gap,
+//! conserves angular momentum to 1e-13 in free flight (measured), but the non-affine
+//! offsets then feed back into the node velocities: after rebuilds on an irregular
+//! particle cloud (the spun plate of `plate_fracture_2d.toml`, ε ≤ 1) elements
+//! invert within 0.1–0.5 s. We keep the paper's `B` (stable; ~1e-4 drift over a
+//! 200-step spin, measured in `tests/updated_lagrangian.rs`).
+//!
+//! **Rebuilds** keep each particle's `B_p` as it is, as APIC/MLS keep it from step to
+//! step. `B ≈ ∇v Fˢⁿ K⁻¹` is relative to the replaced reference, so after a rebuild
+//! with `Fˢⁿ` far from `I` the new reference reads `B K ≈ ∇v Fˢⁿ`. Converting it
+//! (`C = B K Fˢⁿ⁻¹`, plus the spin that keeps APIC's moment) was tried: it is exact
+//! for affine motion but amplifies the noise of fluid-like `Fˢⁿ`, which shear without
+//! limit at `det ≈ 1`, by `Fˢⁿ⁻¹` (the droplet's J-fluid collapsed at 0.34 s).
 //!
 //! **Kernel-MPM variant** (paper Appendix B; [`UpdatedLagrangianStepper::set_kernel_mpm`]):
 //! no affine term, the weight gradients `∇_X W` are stored with the weights, the force
@@ -49,7 +77,9 @@
 //! **Several bodies.** Each body gets its own reference lattice, stored in its own
 //! lane of the block-sparse index space (`LANE` cells apart along x), so bodies never
 //! share reference nodes. They interact through `couple_bodies`: every reference node
-//! is spread at its current position `q_i` onto a global grid of spacing `h`; where
+//! is spread, at the centroid of its mass `Σ W m x / m_i` (eq. 12: inside the
+//! material, where the moving node `q_i` may stand up to a cell outside it), onto a
+//! global grid of spacing `h`; where
 //! several bodies meet at a global node, each body's nodal velocities are corrected
 //! towards the centre-of-mass velocity there (multi-velocity-field, no-slip contact).
 //! The correction conserves linear momentum exactly and leaves a body alone untouched.
@@ -105,6 +135,10 @@ pub struct LagrangianSnapshot<T: Real, const D: usize> {
     pub weight_evaluations: u64,
     /// Seconds spent in rebuilds so far.
     pub rebuild_seconds: f64,
+    /// Current node positions `q_i` (flat node order of the re-binned lattice).
+    pub node_positions: Vec<Vector<T, D>>,
+    /// Whether `q_i` are still the lattice positions of the last rebuild.
+    pub nodes_fresh: bool,
 }
 
 /// The updated-Lagrangian stepper: a grid binned by reference positions and the
@@ -132,6 +166,11 @@ pub struct UpdatedLagrangianStepper<T: Real, const D: usize, K: Kernel, L: GridL
     /// Lane offset of each particle in storage order (multi-body only), set at rebuild.
     lanes: Vec<i32>,
     multi_body: bool,
+    /// Current node positions `q_i` (eq. 27), flat node order; they move with the
+    /// grid velocity and are reset to the lattice at every rebuild.
+    node_positions: Vec<Vector<T, D>>,
+    /// `q_i` are the lattice positions of the last rebuild (set them at the next P2G).
+    nodes_fresh: bool,
     _stencil: PhantomData<(K, L)>,
 }
 
@@ -189,6 +228,8 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
             bodies: Vec::new(),
             lanes: Vec::new(),
             multi_body: false,
+            node_positions: Vec::new(),
+            nodes_fresh: true,
             _stencil: PhantomData,
         }
     }
@@ -228,6 +269,8 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
             rebuilds: self.rebuilds,
             weight_evaluations: self.weight_evaluations,
             rebuild_seconds: self.rebuild_seconds,
+            node_positions: self.node_positions.clone(),
+            nodes_fresh: self.nodes_fresh,
         }
     }
 
@@ -266,6 +309,13 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
             if order.iter().enumerate().any(|(i, &o)| o as usize != i) {
                 return Err("particles are not in the order of their reference lattice".into());
             }
+            if !snapshot.nodes_fresh && snapshot.node_positions.len() != self.grid.node_count() {
+                return Err(format!(
+                    "{} node positions for a reference lattice of {} nodes",
+                    snapshot.node_positions.len(),
+                    self.grid.node_count()
+                ));
+            }
         }
         self.state = snapshot.state;
         self.cells = cells;
@@ -275,6 +325,8 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
         self.rebuilds = snapshot.rebuilds;
         self.weight_evaluations = snapshot.weight_evaluations;
         self.rebuild_seconds = snapshot.rebuild_seconds;
+        self.node_positions = snapshot.node_positions;
+        self.nodes_fresh = snapshot.nodes_fresh;
         Ok(())
     }
 
@@ -383,6 +435,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
         self.rebuilds += 1;
         self.weight_evaluations += n as u64;
         self.built = true;
+        self.nodes_fresh = true;
         self.rebuild_seconds += t0.elapsed().as_secs_f64();
         match singular {
             Some(p) => Err(StepError::NonFinite {
@@ -450,11 +503,12 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
         } else {
             &params.colliders
         };
+        let node_q = &self.node_positions;
         let solved = solve.solve(
             &mut self.grid,
             particles,
             T::lit(L::gather_weight()),
-            |_k, _node, m, q| q / m,
+            |i, _k, _node, _m, _| node_q[i],
             colliders,
             params.time,
             dt,
@@ -470,13 +524,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
         if self.multi_body {
             // Bodies meet after their implicit solves; then the colliders.
             self.couple_bodies(h);
-            let t = params.time;
-            self.grid.for_each_node_mut(|_k, _node, m, q_moment, v| {
-                let q = q_moment / m;
-                for c in &params.colliders {
-                    *v = c.apply(&q, *v, t);
-                }
-            });
+            self.apply_colliders(&params.colliders, params.time);
         }
         let t3 = Instant::now();
         let result = self.grid_to_particle(particles, materials, params);
@@ -519,10 +567,11 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
         } else {
             &params.colliders
         };
+        let node_q = &self.node_positions;
         solve.set_up_nodes(
             &self.grid,
             T::lit(L::gather_weight()),
-            |_k, _node, m, q| q / m,
+            |i, _k, _node, _m, _| node_q[i],
             colliders,
             params.time,
         );
@@ -607,91 +656,118 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
         let lanes = &self.lanes;
         let kernel_mpm = self.kernel_mpm;
         let flip = kernel_mpm.is_some_and(|a| a > T::zero());
-        self.grid.scatter(ext, flip, true, |_home, range, buf| {
-            for i in range {
-                let lane = lanes.get(i).copied().unwrap_or(0);
-                let xs = st.position[i];
-                let kp = st.moment_inverse[i];
-                let c = match kernel_mpm {
-                    Some(_) => Matrix::<T, D>::zeros(),
-                    None => p.affine.get(i).map_or(Matrix::<T, D>::zeros(), |b| b * kp),
-                };
-                let fsn_inv_t = try_inverse(&st.relative_deformation[i])
-                    .map_or(Matrix::<T, D>::identity(), |f| f.transpose());
-                let tau = if elastic_forces {
-                    materials[p.material[i] as usize].kirchhoff_stress(&p.state(i))
-                } else {
-                    Matrix::<T, D>::zeros()
-                };
-                // MLS: −V τ Fˢⁿ⁻ᵀ K r W; kernel-MPM: −V τ Fˢⁿ⁻ᵀ ∇_X W.
-                let stress = tau * fsn_inv_t * (-p.volume[i] * dt);
-                let force = stress * kp;
-                let grads = if kernel_mpm.is_some() {
-                    &st.gradients[i * npp..(i + 1) * npp]
-                } else {
-                    &[][..]
-                };
-                let (m, v, x) = (p.mass[i], p.v[i], p.x[i]);
-                let w = &st.weights[i * npp..(i + 1) * npp];
-                for k in 0..L::GRIDS {
-                    let (mut base, frac) = geometry::<T, D, K, L>(&xs, inv_h, k);
-                    base[0] += lane;
-                    let s = Stencil::<T, D> {
-                        base,
-                        w: [[T::zero(); 4]; D],
-                        dw: [[T::zero(); 4]; D],
-                        frac,
-                        n: K::NODES_PER_AXIS,
-                        inv_h,
+        // The contact pass places each node at the centroid of its mass (eq. 12).
+        let centroids = self.multi_body;
+        self.grid
+            .scatter(ext, flip, centroids, |_home, range, buf| {
+                for i in range {
+                    let lane = lanes.get(i).copied().unwrap_or(0);
+                    let xs = st.position[i];
+                    let kp = st.moment_inverse[i];
+                    let c = match kernel_mpm {
+                        Some(_) => Matrix::<T, D>::zeros(),
+                        None => p.affine.get(i).map_or(Matrix::<T, D>::zeros(), |b| b * kp),
                     };
-                    for q in 0..per_grid {
-                        let j = s.local(q);
-                        let wq = w[k * per_grid + q];
-                        let r = s.offset_to_node(&j, h);
-                        let node = s.node(&j);
-                        let mw = m * wq;
-                        let impulse = match grads.get(k * per_grid + q) {
-                            Some(g) => stress * g,
-                            None => force * r * wq,
+                    let fsn_inv_t = try_inverse(&st.relative_deformation[i])
+                        .map_or(Matrix::<T, D>::identity(), |f| f.transpose());
+                    let tau = if elastic_forces {
+                        materials[p.material[i] as usize].kirchhoff_stress(&p.state(i))
+                    } else {
+                        Matrix::<T, D>::zeros()
+                    };
+                    // MLS: −V τ Fˢⁿ⁻ᵀ K r W; kernel-MPM: −V τ Fˢⁿ⁻ᵀ ∇_X W.
+                    let stress = tau * fsn_inv_t * (-p.volume[i] * dt);
+                    let force = stress * kp;
+                    let grads = if kernel_mpm.is_some() {
+                        &st.gradients[i * npp..(i + 1) * npp]
+                    } else {
+                        &[][..]
+                    };
+                    let (m, v, x) = (p.mass[i], p.v[i], p.x[i]);
+                    let w = &st.weights[i * npp..(i + 1) * npp];
+                    for k in 0..L::GRIDS {
+                        let (mut base, frac) = geometry::<T, D, K, L>(&xs, inv_h, k);
+                        base[0] += lane;
+                        let s = Stencil::<T, D> {
+                            base,
+                            w: [[T::zero(); 4]; D],
+                            dw: [[T::zero(); 4]; D],
+                            frac,
+                            n: K::NODES_PER_AXIS,
+                            inv_h,
                         };
-                        buf.add(k, &node, mw, &((v + c * r) * mw), &impulse);
-                        buf.add_position(k, &node, &(x * mw));
+                        for q in 0..per_grid {
+                            let j = s.local(q);
+                            let wq = w[k * per_grid + q];
+                            let r = s.offset_to_node(&j, h);
+                            let node = s.node(&j);
+                            let mw = m * wq;
+                            let impulse = match grads.get(k * per_grid + q) {
+                                Some(g) => stress * g,
+                                None => force * r * wq,
+                            };
+                            buf.add(k, &node, mw, &((v + c * r) * mw), &impulse);
+                            if centroids {
+                                buf.add_position(k, &node, &(x * mw));
+                            }
+                        }
                     }
                 }
-            }
-        });
+            });
+        self.refresh_node_positions(h);
+    }
+
+    /// Right after a rebuild, sets the node positions `q_i` to the lattice positions.
+    fn refresh_node_positions(&mut self, h: T) {
+        if self.nodes_fresh || self.node_positions.len() != self.grid.node_count() {
+            self.grid.fill_nodes(&mut self.node_positions, |k, node| {
+                let off = T::lit(L::offset(k));
+                let mut x = Vector::<T, D>::zeros();
+                for a in 0..D {
+                    let mut c = node[a];
+                    if a == 0 {
+                        c -= lane_of(c) * LANE;
+                    }
+                    x[a] = (T::lit(c as f64) + off) * h;
+                }
+                x
+            });
+            self.nodes_fresh = true;
+        }
+    }
+
+    /// Colliders act on every node with mass at its current position `q_i`.
+    fn apply_colliders(&mut self, colliders: &[Collider<T, D>], t: T) {
+        if colliders.is_empty() {
+            return;
+        }
+        let grid = &mut self.grid;
+        grid.velocity
+            .par_iter_mut()
+            .zip(self.node_positions.par_iter())
+            .zip(grid.mass.par_iter())
+            .for_each(|((v, q), m)| {
+                if *m > T::zero() {
+                    for c in colliders {
+                        *v = c.apply(q, *v, t);
+                    }
+                }
+            });
     }
 
     fn grid_update(&mut self, params: &StepParams<T, D>) {
         let dt = params.dt;
         let g = params.gravity;
         let t = params.time;
-        let colliders: &[Collider<T, D>] = &params.colliders;
-        let multi = self.multi_body;
-        self.grid.update(|_k, _node, m, p, q_moment| {
-            let mut v = p / m + g * dt;
-            if !multi {
-                // Boundary conditions at the node's current position q_i (eq. 12).
-                let q = q_moment / m;
-                for c in colliders {
-                    v = c.apply(&q, v, t);
-                }
-            }
-            v
-        });
-        if multi {
+        self.grid.update(|_k, _node, m, p, _| p / m + g * dt);
+        if self.multi_body {
             self.couple_bodies(params.h);
-            self.grid.for_each_node_mut(|_k, _node, m, q_moment, v| {
-                let q = q_moment / m;
-                for c in colliders {
-                    *v = c.apply(&q, *v, t);
-                }
-            });
         }
+        self.apply_colliders(&params.colliders, t);
     }
 
     /// Contact between bodies (multi-velocity-field, no-slip): every reference node is
-    /// spread, at its current position `q_i`, onto a global grid of spacing `h` with
+    /// spread, at the centroid of its mass `Σ W m x / m_i` (eq. 12), onto a global grid of spacing `h` with
     /// multilinear weights `w_ig`. Where several bodies meet at a global node `g`, each
     /// body's node velocities are corrected by `Σ_g w_ig (v_cm,g − v_b,g)`, the
     /// difference between the centre-of-mass velocity and the body's own there.
@@ -945,14 +1021,20 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
                         jacobian: js.next(),
                         velocity_gradient: ls.next(),
                     };
-                    if let Some(e) = one(c * PARTICLE_CHUNK + k, xp, vp, as_.next(), fsn, dj, state)
-                    {
+                    let p = c * PARTICLE_CHUNK + k;
+                    if let Some(e) = one(p, xp, vp, as_.next(), fsn, dj, state) {
                         worst = Some(e.lowest(worst));
                     }
                 }
                 worst
             })
             .min_by_key(|e| e.particle());
+        // The nodes move with the grid velocity (eq. 27): q_i += Δt v_i.
+        self.node_positions
+            .par_iter_mut()
+            .zip(self.grid.velocity.par_iter())
+            .for_each(|(q, v)| *q += v * dt);
+        self.nodes_fresh = false;
         match first_error {
             Some(e) => Err(e),
             None => Ok(()),

@@ -6,7 +6,7 @@ use mpm_aul::{Adaptive, Eulerian, ReferenceConfig, TotalLagrangian, UpdatedLagra
 use mpm_constitutive::{ElasticModel, Material, NeoHookean};
 use mpm_grid::{Dual, GridLayout, Single};
 use mpm_kernels::{Compact, Kernel, QuadraticBSpline};
-use mpm_math::Vector;
+use mpm_math::{affine_moment, Vector};
 use mpm_transfer::{ExplicitStepper, Mls, Particles, StepParams};
 use nalgebra::{Matrix3, Vector3};
 
@@ -128,49 +128,85 @@ fn momentum(p: &Particles<f64, 3>) -> [f64; 3] {
     m
 }
 
-/// Relative change of linear momentum over 200 free-flight steps, and rebuilds.
-/// (Angular momentum is not conserved to round-off by this formulation: the
-/// transfers conserve it for the reference positions, not the current ones; the
-/// drift measured is reported in the issue note, not asserted here.)
-fn linear_momentum_drift<K: Kernel, L: GridLayout, R: ReferenceConfig>(reference: R) -> (f64, u64) {
+/// Angular momentum about the origin: `Σ m x × v` plus each particle's affine part
+/// `m ε : (B Fˢⁿᵀ)ᵀ`, the moment the next P2G transfers (see the `mpm-aul` docs); and
+/// the spin about the centre of mass, the scale the drift is measured against.
+fn angular_momentum<K: Kernel, L: GridLayout>(
+    p: &Particles<f64, 3>,
+    us: &UpdatedLagrangianStepper<f64, 3, K, L>,
+) -> (Vector3<f64>, f64) {
+    let fsn = &us.state.relative_deformation;
+    let mass: f64 = p.mass.iter().sum();
+    let centre = (0..p.len())
+        .map(|i| p.x[i] * p.mass[i])
+        .sum::<Vector3<f64>>()
+        / mass;
+    let (mut about_origin, mut about_centre) = (Vector3::zeros(), Vector3::zeros());
+    for i in 0..p.len() {
+        let b = match fsn.get(i) {
+            Some(f) => p.affine[i] * f.transpose(),
+            None => p.affine[i],
+        };
+        let m = affine_moment(&b);
+        let affine = Vector3::new(m[0], m[1], m[2]) * p.mass[i];
+        about_origin += p.x[i].cross(&p.v[i]) * p.mass[i] + affine;
+        about_centre += (p.x[i] - centre).cross(&p.v[i]) * p.mass[i] + affine;
+    }
+    (about_origin, about_centre.norm())
+}
+
+/// Relative changes of linear and angular momentum over 200 free-flight steps, and
+/// rebuilds.
+fn free_flight_drift<K: Kernel, L: GridLayout, R: ReferenceConfig>(
+    reference: R,
+) -> (f64, f64, u64) {
     let mats = material();
     let mut p = spinning_box();
     let mut us = UpdatedLagrangianStepper::<f64, 3, K, L>::new();
     let a = momentum(&p);
+    let (l0, spin) = angular_momentum(&p, &us);
     for _ in 0..200 {
         us.step(&mut p, &mats, &reference, &params()).unwrap();
     }
     let b = momentum(&p);
+    let (l1, _) = angular_momentum(&p, &us);
     let d: f64 = (0..3).map(|i| (a[i] - b[i]).powi(2)).sum::<f64>().sqrt();
-    (d / a.iter().map(|c| c * c).sum::<f64>().sqrt(), us.rebuilds)
+    let lin = d / a.iter().map(|c| c * c).sum::<f64>().sqrt();
+    (lin, (l1 - l0).norm() / spin, us.rebuilds)
 }
 
 #[test]
-fn linear_momentum_in_free_flight() {
+fn momentum_in_free_flight() {
     let adaptive = Adaptive {
         epsilon: 0.01,
         eta: 0.05,
     };
-    for (name, (lin, rebuilds)) in [
+    for (name, (lin, ang, rebuilds)) in [
         (
             "TL quadratic",
-            linear_momentum_drift::<QuadraticBSpline, Single, _>(TotalLagrangian),
+            free_flight_drift::<QuadraticBSpline, Single, _>(TotalLagrangian),
         ),
         (
             "TL compact",
-            linear_momentum_drift::<Compact, Dual, _>(TotalLagrangian),
+            free_flight_drift::<Compact, Dual, _>(TotalLagrangian),
         ),
         (
             "A-UL quadratic",
-            linear_momentum_drift::<QuadraticBSpline, Single, _>(adaptive),
+            free_flight_drift::<QuadraticBSpline, Single, _>(adaptive),
         ),
         (
             "A-UL compact",
-            linear_momentum_drift::<Compact, Dual, _>(adaptive),
+            free_flight_drift::<Compact, Dual, _>(adaptive),
         ),
     ] {
-        // Sums of ~600 particles × 27–16 nodes over 200 steps: round-off ≪ 1e-12.
+        eprintln!("{name}: linear {lin:e}, angular {ang:e}, rebuilds {rebuilds}");
+        // Sums of ~600 particles × 27–128 nodes over 200 steps: round-off ≪ 1e-12.
         assert!(lin < 1e-12, "{name}: linear momentum drift {lin:e}");
+        // Not exact (crate docs, *Angular momentum*): the node clouds' non-affine motion
+        // carries a little, and each rebuild keeps B as measured on the old reference.
+        // Measured when written: TL 8.7e-5 to 9.7e-5, A-UL 1.7e-4 to 4.0e-4. A regression
+        // bound, not the target of 1e-10: see the issue notes.
+        assert!(ang < 1e-3, "{name}: angular momentum drift {ang:e}");
         if name.starts_with("A-UL") {
             assert!(rebuilds > 1, "{name}: the adaptive run should rebuild");
         }

@@ -386,6 +386,7 @@ pub fn build_colliders<T: Real, const D: usize>(scene: &Scene) -> Vec<Collider<T
                 kind,
                 friction,
                 velocity,
+                angular_velocity,
             } => {
                 let n = vector::<T, D>(normal);
                 Collider {
@@ -396,6 +397,7 @@ pub fn build_colliders<T: Real, const D: usize>(scene: &Scene) -> Vec<Collider<T
                     kind: contact(*kind),
                     friction: T::lit(*friction),
                     velocity: vector(velocity),
+                    angular_velocity: spin(angular_velocity),
                 }
             }
             ColliderSpec::Sphere {
@@ -404,6 +406,7 @@ pub fn build_colliders<T: Real, const D: usize>(scene: &Scene) -> Vec<Collider<T
                 kind,
                 friction,
                 velocity,
+                angular_velocity,
             } => Collider {
                 shape: ColliderShape::Sphere {
                     center: vector(center),
@@ -412,10 +415,19 @@ pub fn build_colliders<T: Real, const D: usize>(scene: &Scene) -> Vec<Collider<T
                 kind: contact(*kind),
                 friction: T::lit(*friction),
                 velocity: vector(velocity),
+                angular_velocity: spin(angular_velocity),
             },
         });
     }
     c
+}
+
+/// A scene's angular velocity (2-D: `[ω_z]`, 3-D: `[ω_x, ω_y, ω_z]`) as three components.
+fn spin<T: Real>(w: &[f64]) -> [T; 3] {
+    match w {
+        [z] => [T::zero(), T::zero(), T::lit(*z)],
+        _ => std::array::from_fn(|a| T::lit(w.get(a).copied().unwrap_or(0.0))),
+    }
 }
 
 /// The transfer scheme a scene names.

@@ -606,7 +606,8 @@ pub struct ProbeSpec {
     pub body: usize,
 }
 
-/// `[[collider]]`. `velocity` is filled with zeros when absent.
+/// `[[collider]]`. `velocity` and `angular_velocity` (about the plane's point or the
+/// sphere's centre; 2-D: one rate about z) are filled with zeros when absent.
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
 #[serde(tag = "type", rename_all = "kebab-case", deny_unknown_fields)]
 pub enum ColliderSpec {
@@ -618,6 +619,7 @@ pub enum ColliderSpec {
         #[serde(default)]
         friction: f64,
         velocity: Vec<f64>,
+        angular_velocity: Vec<f64>,
     },
     Sphere {
         center: Vec<f64>,
@@ -627,6 +629,7 @@ pub enum ColliderSpec {
         #[serde(default)]
         friction: f64,
         velocity: Vec<f64>,
+        angular_velocity: Vec<f64>,
     },
 }
 
@@ -945,6 +948,8 @@ fn fill_resolved_defaults(doc: &mut toml::Table) {
         for c in colliders {
             if let Value::Table(t) = c {
                 t.entry("velocity").or_insert_with(|| zeros(d));
+                t.entry("angular_velocity")
+                    .or_insert_with(|| zeros(if d == 2 { 1 } else { 3 }));
             }
         }
     }
@@ -1653,12 +1658,18 @@ impl Scene {
         // Colliders.
         for (i, col) in self.collider.iter().enumerate() {
             let k = |f: &str| format!("collider.{i}.{f}");
+            let (na, why) = if dim == 2 {
+                (1, "2-D: one rate about the z axis")
+            } else {
+                (3, "3-D: one per axis")
+            };
             let (friction, velocity) = match col {
                 ColliderSpec::Plane {
                     point,
                     normal,
                     friction,
                     velocity,
+                    angular_velocity,
                     ..
                 } => {
                     c.vector(&k("point"), point, dim, &per_axis)?;
@@ -1670,6 +1681,33 @@ impl Scene {
                             "Give a non-zero normal pointing into the free side",
                         ));
                     }
+                    c.vector(&k("angular_velocity"), angular_velocity, na, why)?;
+                    // A spin keeps the plane in place only about its own normal.
+                    let w = angular_velocity;
+                    let tilts = if dim == 2 {
+                        w[0] != 0.0
+                    } else {
+                        let len = normal.iter().map(|x| x * x).sum::<f64>().sqrt();
+                        let n: Vec<f64> = normal.iter().map(|x| x / len).collect();
+                        let cross = [
+                            w[1] * n[2] - w[2] * n[1],
+                            w[2] * n[0] - w[0] * n[2],
+                            w[0] * n[1] - w[1] * n[0],
+                        ];
+                        let wn = w.iter().map(|x| x * x).sum::<f64>().sqrt();
+                        cross.iter().map(|x| x * x).sum::<f64>().sqrt() > 1e-9 * wn
+                    };
+                    if tilts {
+                        return Err(c.err(
+                            &k("angular_velocity"),
+                            "would tilt the plane (only its velocity is simulated, not its turning geometry)",
+                            if dim == 2 {
+                                "A 2-D plane cannot spin; use a sphere (disc) collider, or leave angular_velocity = [0]"
+                            } else {
+                                "Make angular_velocity parallel to the normal (a plane twisting about its normal), or use a sphere"
+                            },
+                        ));
+                    }
                     (*friction, velocity)
                 }
                 ColliderSpec::Sphere {
@@ -1677,10 +1715,12 @@ impl Scene {
                     radius,
                     friction,
                     velocity,
+                    angular_velocity,
                     ..
                 } => {
                     c.vector(&k("center"), center, dim, &per_axis)?;
                     c.positive(&k("radius"), *radius)?;
+                    c.vector(&k("angular_velocity"), angular_velocity, na, why)?;
                     (*friction, velocity)
                 }
             };

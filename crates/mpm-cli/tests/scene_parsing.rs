@@ -870,4 +870,62 @@ fn probe_and_collider_errors() {
         &["collider.0.kind=bouncy"],
         &["collider.0", "sticky"],
     );
+    // Spinning colliders: a plane may turn only about its own normal (y here).
+    bad(
+        FULL_3D,
+        &["collider.0.angular_velocity=[1, 0, 0]"],
+        &[
+            "collider.0.angular_velocity",
+            "tilt",
+            "parallel to the normal",
+        ],
+    );
+    bad(
+        FULL_3D,
+        &["collider.0.angular_velocity=[0, 1]"],
+        &["collider.0.angular_velocity", "exactly 3"],
+    );
+    bad(
+        MIN_2D,
+        &["collider.0.angular_velocity=[2]"],
+        &["collider.0.angular_velocity", "tilt", "sphere (disc)"],
+    );
+}
+
+#[test]
+fn spinning_colliders() {
+    // Defaults: no spin; a plane twisting about its normal and a spinning sphere parse.
+    let s = parse(FULL_3D, &[]).unwrap();
+    for c in &s.collider {
+        let w = match c {
+            ColliderSpec::Plane {
+                angular_velocity, ..
+            }
+            | ColliderSpec::Sphere {
+                angular_velocity, ..
+            } => angular_velocity,
+        };
+        assert_eq!(w, &vec![0.0; 3]);
+    }
+    let s = parse(
+        FULL_3D,
+        &[
+            "collider.0.angular_velocity=[0, -3, 0]",
+            "collider.1.angular_velocity=[1, 2, 3]",
+        ],
+    )
+    .unwrap();
+    match &s.collider[0] {
+        ColliderSpec::Plane {
+            angular_velocity, ..
+        } => assert_eq!(angular_velocity, &vec![0.0, -3.0, 0.0]),
+        other => panic!("expected a plane, got {other:?}"),
+    }
+    let s = parse(MIN_2D, &[]).unwrap();
+    match &s.collider[0] {
+        ColliderSpec::Plane {
+            angular_velocity, ..
+        } => assert_eq!(angular_velocity, &vec![0.0]),
+        other => panic!("expected a plane, got {other:?}"),
+    }
 }

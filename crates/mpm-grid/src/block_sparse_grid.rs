@@ -674,6 +674,37 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
             });
     }
 
+    /// Fills `out` (one value per node, flat order) with `f(grid, node_index)` for
+    /// every node, with or without mass, in parallel over blocks. For per-node state
+    /// that outlives a step, such as the moving node positions of a Lagrangian
+    /// reference.
+    pub fn fill_nodes<V: Clone + Send>(
+        &self,
+        out: &mut Vec<V>,
+        f: impl Fn(usize, [i32; D]) -> V + Sync,
+    ) {
+        let npb = self.nodes_per_block;
+        let n_blocks = self.blocks.len();
+        let blocks = &self.blocks;
+        let first = f(0, [0; D]);
+        refill(out, self.node_count(), first);
+        out.par_chunks_mut(npb)
+            .enumerate()
+            .for_each(|(chunk, values)| {
+                let grid = chunk / n_blocks;
+                let block = blocks[chunk % n_blocks];
+                for (l, value) in values.iter_mut().enumerate() {
+                    let mut node = block.map(|b| b * BLOCK);
+                    let mut rem = l;
+                    for na in node.iter_mut() {
+                        *na += (rem % BLOCK as usize) as i32;
+                        rem /= BLOCK as usize;
+                    }
+                    *value = f(grid, node);
+                }
+            });
+    }
+
     /// Read access to the velocities around home block `home`.
     pub fn gather_view(&self, home: usize) -> GatherView<'_, T, D> {
         GatherView {

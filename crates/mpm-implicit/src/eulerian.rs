@@ -61,7 +61,7 @@ where
     stepper.velocity_gradient_stencils(particles, scheme, h, nodes, vectors);
     solve.prepare_particles(particles, materials);
     let offsets = [T::lit(L::offset(0)), T::lit(L::offset(L::GRIDS - 1))];
-    let position = |k: usize, node: [i32; D], _m: T, _q: &Vector<T, D>| {
+    let position = |_i: usize, k: usize, node: [i32; D], _m: T, _q: &Vector<T, D>| {
         Vector::<T, D>::from_fn(|a, _| (T::lit(node[a] as f64) + offsets[k.min(1)]) * h)
     };
     let solved = solve.solve(

@@ -66,7 +66,9 @@ pub fn collider_constraint<T: Real, const D: usize>(
         c = match col.kind {
             ContactKind::Sticky => NodeConstraint::Fixed,
             ContactKind::Slip => with_normal(c, &n),
-            ContactKind::Separate if (v - col.velocity).dot(&n) < T::zero() => with_normal(c, &n),
+            ContactKind::Separate if (v - col.velocity_at(x, time)).dot(&n) < T::zero() => {
+                with_normal(c, &n)
+            }
             ContactKind::Separate => c,
         };
         if c == NodeConstraint::Fixed {
@@ -124,13 +126,14 @@ impl<T: Real, const D: usize> GridSolve<T, D> {
 
     /// Reads the nodes: masses `γ m_i` (`gather_weight` is the layout's `γ`), the
     /// prediction `v̂` from `grid.velocity` (without colliders), each node's
-    /// constraint from the colliders at `position(grid, node, mass, position_moment)`,
+    /// constraint from the colliders at
+    /// `position(flat_index, grid, node, mass, position_moment)`,
     /// and a feasible start (`v̂` with the colliders applied).
     pub fn set_up_nodes(
         &mut self,
         grid: &BlockSparseGrid<T, D>,
         gather_weight: T,
-        position: impl Fn(usize, [i32; D], T, &Vector<T, D>) -> Vector<T, D>,
+        position: impl Fn(usize, usize, [i32; D], T, &Vector<T, D>) -> Vector<T, D>,
         colliders: &[Collider<T, D>],
         time: T,
     ) {
@@ -152,7 +155,7 @@ impl<T: Real, const D: usize> GridSolve<T, D> {
         );
         let vhat = &grid.velocity;
         grid.for_each_node_indexed(|i, k, node, m, q| {
-            let x = position(k, node, m, q);
+            let x = position(i, k, node, m, q);
             let v = vhat[i];
             masses[i] = m * gather_weight;
             target[i] = v;
@@ -174,7 +177,7 @@ impl<T: Real, const D: usize> GridSolve<T, D> {
         grid: &mut BlockSparseGrid<T, D>,
         particles: &Particles<T, D>,
         gather_weight: T,
-        position: impl Fn(usize, [i32; D], T, &Vector<T, D>) -> Vector<T, D>,
+        position: impl Fn(usize, usize, [i32; D], T, &Vector<T, D>) -> Vector<T, D>,
         colliders: &[Collider<T, D>],
         time: T,
         dt: T,
@@ -195,17 +198,17 @@ impl<T: Real, const D: usize> GridSolve<T, D> {
             .newton
             .solve(&problem, &mut self.velocity, integrator, settings)?;
         self.last = stats;
-        let solved = &self.velocity;
-        grid.velocity.copy_from_slice(solved);
-        grid.for_each_node_mut(|k, node, m, q, v| {
-            if colliders.is_empty() {
-                return;
-            }
-            let x = position(k, node, m, q);
-            for c in colliders {
-                *v = c.apply(&x, *v, time);
-            }
-        });
+        let mut solved = std::mem::take(&mut grid.velocity);
+        solved.copy_from_slice(&self.velocity);
+        if !colliders.is_empty() {
+            grid.for_each_node_indexed(|i, k, node, m, q| {
+                let x = position(i, k, node, m, q);
+                for c in colliders {
+                    solved[i] = c.apply(&x, solved[i], time);
+                }
+            });
+        }
+        grid.velocity = solved;
         Ok(stats)
     }
 

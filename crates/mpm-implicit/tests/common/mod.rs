@@ -128,7 +128,7 @@ pub fn set_up<const D: usize, K: Kernel, L: GridLayout, S: TransferScheme<f64, D
     solve.set_up_nodes(
         &stepper.grid,
         L::gather_weight(),
-        |k, node, _m, _q| Vector::<f64, D>::from_fn(|a, _| (node[a] as f64 + off[k]) * H),
+        |_i, k, node, _m, _q| Vector::<f64, D>::from_fn(|a, _| (node[a] as f64 + off[k]) * H),
         &[],
         0.0,
     );
