@@ -978,6 +978,56 @@ pub fn torus(major: f64, minor: f64, nu: usize, nv: usize) -> TriMesh {
     m
 }
 
+/// The closed surface swept by turning `profile` (points `[ρ, y]`, `ρ ≥ 0`, first and
+/// last on the axis `ρ = 0`) about the y axis in `segments` steps; triangles face
+/// outwards whichever way the profile runs.
+pub fn revolve(profile: &[[f64; 2]], segments: usize) -> TriMesh {
+    let mut m = TriMesh::default();
+    let n = profile.len();
+    let ring = |j: usize| 2 + (j - 1) * segments;
+    // Poles first (indices 0 and 1), then one ring per interior profile point.
+    m.vertices.push([0.0, profile[0][1], 0.0]);
+    m.vertices.push([0.0, profile[n - 1][1], 0.0]);
+    for p in &profile[1..n - 1] {
+        for s in 0..segments {
+            let u = 2.0 * PI * s as f64 / segments as f64;
+            m.vertices.push([p[0] * u.cos(), p[1], p[0] * u.sin()]);
+        }
+    }
+    let at = |j: usize, s: usize| (ring(j) + s % segments) as u32;
+    for s in 0..segments {
+        m.triangles.push([0, at(1, s), at(1, s + 1)]);
+        for j in 1..n - 2 {
+            m.triangles.push([at(j, s), at(j + 1, s), at(j + 1, s + 1)]);
+            m.triangles.push([at(j, s), at(j + 1, s + 1), at(j, s + 1)]);
+        }
+        m.triangles.push([1, at(n - 2, s + 1), at(n - 2, s)]);
+    }
+    if m.signed_volume() < 0.0 {
+        for t in &mut m.triangles {
+            t.swap(1, 2);
+        }
+    }
+    m
+}
+
+/// A hemispherical bowl opening upwards (+y): outer radius `outer`, wall `thickness`,
+/// rim at y = 0, bottom at y = −outer; `segments` around, `steps` along each
+/// quarter circle.
+pub fn bowl(outer: f64, thickness: f64, segments: usize, steps: usize) -> TriMesh {
+    let inner = outer - thickness;
+    let arc = |r: f64, k: usize| {
+        let a = -0.5 * PI + 0.5 * PI * k as f64 / steps as f64;
+        [r * a.cos().max(0.0), r * a.sin()]
+    };
+    let mut profile: Vec<[f64; 2]> = (0..=steps).map(|k| arc(outer, k)).collect();
+    profile.extend((0..=steps).rev().map(|k| arc(inner, k)));
+    profile[0][0] = 0.0;
+    let last = profile.len() - 1;
+    profile[last][0] = 0.0;
+    revolve(&profile, segments)
+}
+
 /// An icosphere with `levels` subdivisions (20·4^levels outward triangles) whose
 /// vertices are moved to radius `radius(direction)`. A radial graph over the sphere
 /// cannot self-intersect, so any positive `radius` gives a valid closed mesh.

@@ -2,7 +2,8 @@
 //! self-intersection checks, generated meshes, rotations, OBJ/STL round trips.
 
 use mpm_cli::mesh::{
-    bunny_blob, dot, load, radial_icosphere, rotation_matrix, torus, MeshError, SolidMesh, TriMesh,
+    bowl, bunny_blob, dot, load, radial_icosphere, rotation_matrix, torus, MeshError, SolidMesh,
+    TriMesh,
 };
 use std::f64::consts::PI;
 
@@ -137,6 +138,41 @@ fn generated_meshes_are_closed_and_outward() {
     assert_eq!(b.triangles.len(), 1280);
     b.check_closed().unwrap();
     assert!(b.signed_volume() > 0.0);
+}
+
+#[test]
+fn bowl_is_a_closed_shell_that_converges_to_its_volume() {
+    // Hemispherical shell: 2π/3 (R³ − r³).
+    let exact = 2.0 * PI / 3.0 * (1.0 - 0.8f64.powi(3));
+    let error = |segments, steps| {
+        let w = bowl(1.0, 0.2, segments, steps);
+        // Per segment: 2 pole fans + 2 triangles on each of the 2·steps − 1 bands
+        // between the 2·steps rings (both arcs and the rim).
+        assert_eq!(w.triangles.len(), segments * 4 * steps);
+        w.check_closed().unwrap();
+        w.check_self_intersection().unwrap();
+        let (lo, hi) = w.bounds();
+        assert!(
+            (lo[1] + 1.0).abs() < 1e-12 && hi[1].abs() < 1e-12,
+            "{lo:?} {hi:?}"
+        );
+        // Inscribed: smaller than the smooth shell.
+        let v = w.signed_volume();
+        assert!(v > 0.0 && v < exact, "{v} vs {exact}");
+        exact - v
+    };
+    let coarse = error(24, 6);
+    let fine = error(48, 12);
+    // Chords of angle Δ lose O(Δ²): halving both steps divides the error by ≈ 4.
+    let ratio = coarse / fine;
+    assert!(ratio > 3.5 && ratio < 4.5, "error ratio {ratio}");
+    assert!(fine < 0.01 * exact, "shipped resolution off by {fine}");
+    // The point in the wall is inside; the cavity and the space above are not.
+    let solid = SolidMesh::new(bowl(1.0, 0.2, 48, 12));
+    assert!(solid.contains([0.0, -0.9, 0.0]));
+    assert!(solid.contains([0.6364, -0.6364, 0.0]));
+    assert!(!solid.contains([0.0, -0.5, 0.0]));
+    assert!(!solid.contains([0.0, 0.1, 0.0]));
 }
 
 #[test]
