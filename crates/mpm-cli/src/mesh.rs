@@ -1028,6 +1028,27 @@ pub fn bowl(outer: f64, thickness: f64, segments: usize, steps: usize) -> TriMes
     revolve(&profile, segments)
 }
 
+/// A yo-yo about the y axis: a ball of radius `ball` centred at the origin hanging from
+/// a cord of radius `cord` (< `ball`) that leaves its top and ends `length` above the
+/// ball's surface, as one closed solid of revolution; `segments` around, `steps` along
+/// the ball's arc from the cord down to the bottom pole.
+pub fn yoyo(ball: f64, cord: f64, length: f64, segments: usize, steps: usize) -> TriMesh {
+    let join = (ball * ball - cord * cord).sqrt();
+    let top = join + length;
+    let start = join.atan2(cord);
+    let mut profile = vec![[0.0, top], [cord, top]];
+    // The cord in cells as long as it is wide, then the arc.
+    let pieces = ((length / (2.0 * cord)).ceil() as usize).max(1);
+    profile.extend((1..pieces).map(|k| [cord, top - length * k as f64 / pieces as f64]));
+    profile.extend((0..=steps).map(|k| {
+        let a = start - (start + 0.5 * PI) * k as f64 / steps as f64;
+        [ball * a.cos(), ball * a.sin()]
+    }));
+    let last = profile.len() - 1;
+    profile[last] = [0.0, -ball];
+    revolve(&profile, segments)
+}
+
 /// An icosphere with `levels` subdivisions (20·4^levels outward triangles) whose
 /// vertices are moved to radius `radius(direction)`. A radial graph over the sphere
 /// cannot self-intersect, so any positive `radius` gives a valid closed mesh.
