@@ -46,6 +46,22 @@ pub struct Cell {
     pub cells: usize,
 }
 
+impl Cell {
+    /// The base cell the sweeps vary one axis of: a 1e5 Pa block at 10 m/s and half
+    /// the CFL step, `cells` across.
+    pub fn base(dim: usize, integrator: &'static str, kernel: &'static str, cells: usize) -> Cell {
+        Cell {
+            dim,
+            kernel,
+            integrator,
+            youngs_modulus: 1e5,
+            speed: 10.0,
+            dt_factor: 0.5,
+            cells,
+        }
+    }
+}
+
 /// What happened to a cell.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Outcome {
@@ -164,15 +180,12 @@ pub fn matrix(quick: bool) -> Vec<Cell> {
     for dim in [2, 3] {
         for integrator in ["explicit", "implicit"] {
             for kernel in ["compact", "quadratic"] {
-                let base = Cell {
+                let base = Cell::base(
                     dim,
-                    kernel,
                     integrator,
-                    youngs_modulus: 1e5,
-                    speed: 10.0,
-                    dt_factor: 0.5,
-                    cells: if quick && dim == 3 { 4 } else { 16 },
-                };
+                    kernel,
+                    if quick && dim == 3 { 4 } else { 16 },
+                );
                 let mut push = |c: Cell| {
                     if !cells.contains(&c) {
                         cells.push(c);

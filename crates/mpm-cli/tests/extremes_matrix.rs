@@ -4,15 +4,7 @@
 use mpm_cli::extremes::{matrix, run_cell, Cell, Outcome};
 
 fn cell(dim: usize, integrator: &'static str, kernel: &'static str) -> Cell {
-    Cell {
-        dim,
-        kernel,
-        integrator,
-        youngs_modulus: 1e5,
-        speed: 10.0,
-        dt_factor: 0.5,
-        cells: 8,
-    }
+    Cell::base(dim, integrator, kernel, 8)
 }
 
 fn outcome(c: Cell) -> Outcome {

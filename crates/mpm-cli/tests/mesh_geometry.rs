@@ -140,6 +140,24 @@ fn generated_meshes_are_closed_and_outward() {
     assert!(b.signed_volume() > 0.0);
 }
 
+/// `exact − volume` of a closed, self-intersection-free polygonal approximation of a
+/// smooth solid whose vertices lie on its surface (inscribed: smaller than it).
+fn inscribed_volume_error(mesh: &TriMesh, exact: f64) -> f64 {
+    mesh.check_closed().unwrap();
+    mesh.check_self_intersection().unwrap();
+    let v = mesh.signed_volume();
+    assert!(v > 0.0 && v < exact, "{v} vs {exact}");
+    exact - v
+}
+
+/// Chords of angle Δ lose O(Δ²): halving every angle divides the error by ≈ 4.
+/// Returns the fine error.
+fn assert_second_order(coarse: f64, fine: f64) -> f64 {
+    let ratio = coarse / fine;
+    assert!(ratio > 3.5 && ratio < 4.5, "error ratio {ratio}");
+    fine
+}
+
 #[test]
 fn bowl_is_a_closed_shell_that_converges_to_its_volume() {
     // Hemispherical shell: 2π/3 (R³ − r³).
@@ -149,23 +167,14 @@ fn bowl_is_a_closed_shell_that_converges_to_its_volume() {
         // Per segment: 2 pole fans + 2 triangles on each of the 2·steps − 1 bands
         // between the 2·steps rings (both arcs and the rim).
         assert_eq!(w.triangles.len(), segments * 4 * steps);
-        w.check_closed().unwrap();
-        w.check_self_intersection().unwrap();
         let (lo, hi) = w.bounds();
         assert!(
             (lo[1] + 1.0).abs() < 1e-12 && hi[1].abs() < 1e-12,
             "{lo:?} {hi:?}"
         );
-        // Inscribed: smaller than the smooth shell.
-        let v = w.signed_volume();
-        assert!(v > 0.0 && v < exact, "{v} vs {exact}");
-        exact - v
+        inscribed_volume_error(&w, exact)
     };
-    let coarse = error(24, 6);
-    let fine = error(48, 12);
-    // Chords of angle Δ lose O(Δ²): halving both steps divides the error by ≈ 4.
-    let ratio = coarse / fine;
-    assert!(ratio > 3.5 && ratio < 4.5, "error ratio {ratio}");
+    let fine = assert_second_order(error(24, 6), error(48, 12));
     assert!(fine < 0.01 * exact, "shipped resolution off by {fine}");
     // The point in the wall is inside; the cavity and the space above are not.
     let solid = SolidMesh::new(bowl(1.0, 0.2, 48, 12));
@@ -184,20 +193,12 @@ fn yoyo_is_a_ball_on_a_cord_and_converges_to_its_volume() {
     let exact = 4.0 / 3.0 * PI * r.powi(3) - cap + PI * c * c * l;
     let error = |segments, steps| {
         let y = yoyo(r, c, l, segments, steps);
-        y.check_closed().unwrap();
-        y.check_self_intersection().unwrap();
         let (lo, hi) = y.bounds();
         assert!((lo[1] + r).abs() < 1e-12, "{lo:?}");
         assert!((hi[1] - join - l).abs() < 1e-12, "{hi:?}");
-        let v = y.signed_volume();
-        assert!(v > 0.0 && v < exact, "{v} vs {exact}");
-        exact - v
+        inscribed_volume_error(&y, exact)
     };
-    let coarse = error(24, 8);
-    let fine = error(48, 16);
-    // Inscribed polygons: halving the angles divides the error by ≈ 4.
-    let ratio = coarse / fine;
-    assert!(ratio > 3.5 && ratio < 4.5, "error ratio {ratio}");
+    let fine = assert_second_order(error(24, 8), error(48, 16));
     // 48 segments lose 1 − sin(x)/x ≈ 0.29 % (x = 2π/48) around, the 16-step arc about
     // as much again: measured 1.1 %, under 1 % of the radius (0.1 of a cell in
     // yoyo.toml, where the ball is 8 cells across).

@@ -111,6 +111,19 @@ impl<T: Real, const D: usize> LocalBuffer<'_, T, D> {
     }
 }
 
+/// Node index of the `l`-th node (x fastest) of the block with block coordinates
+/// `block`.
+#[inline(always)]
+fn node_in_block<const D: usize>(block: [i32; D], l: usize) -> [i32; D] {
+    let mut node = block.map(|b| b * BLOCK);
+    let mut rem = l;
+    for na in node.iter_mut() {
+        *na += (rem % BLOCK as usize) as i32;
+        rem /= BLOCK as usize;
+    }
+    node
+}
+
 /// Clears `v` and fills it with `n` copies of `value` (keeping its capacity).
 fn refill<X: Clone>(v: &mut Vec<X>, n: usize, value: X) {
     v.clear();
@@ -656,12 +669,7 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
                 for (l, vl) in v.iter_mut().enumerate() {
                     let m = mass[first + l];
                     if m > T::zero() {
-                        let mut node = block.map(|b| b * BLOCK);
-                        let mut rem = l;
-                        for na in node.iter_mut() {
-                            *na += (rem % BLOCK as usize) as i32;
-                            rem /= BLOCK as usize;
-                        }
+                        let node = node_in_block(block, l);
                         let total = if keep_old {
                             momentum[first + l] + impulse[first + l]
                         } else {
@@ -694,12 +702,7 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
                 let grid = chunk / n_blocks;
                 let block = blocks[chunk % n_blocks];
                 for (l, value) in values.iter_mut().enumerate() {
-                    let mut node = block.map(|b| b * BLOCK);
-                    let mut rem = l;
-                    for na in node.iter_mut() {
-                        *na += (rem % BLOCK as usize) as i32;
-                        rem /= BLOCK as usize;
-                    }
+                    let node = node_in_block(block, l);
                     *value = f(grid, node);
                 }
             });
@@ -734,12 +737,7 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
                 let i = chunk * npb + l;
                 let m = self.mass[i];
                 if m > T::zero() && i < self.velocity.len() {
-                    let mut node = block.map(|b| b * BLOCK);
-                    let mut rem = l;
-                    for na in node.iter_mut() {
-                        *na += (rem % BLOCK as usize) as i32;
-                        rem /= BLOCK as usize;
-                    }
+                    let node = node_in_block(block, l);
                     let q = self.position_moment.get(i).unwrap_or(&zero);
                     f(grid, node, m, q, &mut self.velocity[i]);
                 }
@@ -765,12 +763,7 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
                 let i = chunk * npb + l;
                 let m = self.mass[i];
                 if m > T::zero() {
-                    let mut node = block.map(|b| b * BLOCK);
-                    let mut rem = l;
-                    for na in node.iter_mut() {
-                        *na += (rem % BLOCK as usize) as i32;
-                        rem /= BLOCK as usize;
-                    }
+                    let node = node_in_block(block, l);
                     f(
                         i,
                         grid,
