@@ -99,6 +99,18 @@ impl<T: Real, const D: usize> LocalBuffer<'_, T, D> {
         }
     }
 
+    /// Adds mass and momentum at a flat index, for a scatter that folds the impulse
+    /// into the momentum (the caller has summed them).
+    #[inline(always)]
+    pub fn add_folded_at(&mut self, i: usize, mass: T, momentum: &Vector<T, D>) {
+        debug_assert!(
+            self.impulse.is_empty(),
+            "this scatter keeps the impulse apart"
+        );
+        self.mass[i] += mass;
+        self.momentum[i] += momentum;
+    }
+
     /// Adds a mass-weighted position `m w x_p` (for the current nodal positions
     /// `q_i = Σ m w x_p / m_i` of updated-Lagrangian MPM). Ignored unless the scatter
     /// keeps positions.

@@ -5,10 +5,11 @@
 use crate::diagnostics::Totals;
 use crate::particles::Particles;
 use crate::scheme::{Gathered, Needs, TransferScheme};
+use crate::separable::{node_vector, AxisFactors, SliceSums};
 use crate::{advect_checked, StepError};
 use mpm_constitutive::{Material, StateMut};
 use mpm_grid::{optional_chunks, BlockSparseGrid, Collider, GatherView, GridLayout, BLOCK};
-use mpm_kernels::{Kernel, Stencil, MAX_NODES_PER_AXIS};
+use mpm_kernels::{Kernel, Stencil};
 use mpm_math::{try_inverse, Matrix, Real, Vector};
 use rayon::prelude::*;
 use std::marker::PhantomData;
@@ -103,49 +104,6 @@ pub fn moment_matrix<T: Real, const D: usize, L: GridLayout>(
         }
     }
     d * T::lit(L::gather_weight())
-}
-
-/// Per-axis tables of one stencil: offsets `rₐⱼ = (j − fracₐ)·h` and physical
-/// derivatives `N'ₐⱼ/h`, so that a node's `r` and `∇w` are products of table entries.
-#[inline(always)]
-fn axis_tables<T: Real, const D: usize, K: Kernel>(
-    s: &Stencil<T, D>,
-    h: T,
-) -> ([[T; MAX_NODES_PER_AXIS]; D], [[T; MAX_NODES_PER_AXIS]; D]) {
-    let mut r = [[T::zero(); MAX_NODES_PER_AXIS]; D];
-    let mut g = [[T::zero(); MAX_NODES_PER_AXIS]; D];
-    for a in 0..D {
-        for j in 0..K::NODES_PER_AXIS {
-            r[a][j] = (T::lit(j as f64) - s.frac[a]) * h;
-            g[a][j] = s.dw[a][j] * s.inv_h;
-        }
-    }
-    (r, g)
-}
-
-/// Weight, gradient and offset of the node at local offsets `j` from the tables.
-#[inline(always)]
-fn node_terms<T: Real, const D: usize>(
-    s: &Stencil<T, D>,
-    r_axis: &[[T; MAX_NODES_PER_AXIS]; D],
-    g_axis: &[[T; MAX_NODES_PER_AXIS]; D],
-    j: &[usize; D],
-) -> (T, Vector<T, D>, Vector<T, D>) {
-    let mut w = T::one();
-    for a in 0..D {
-        w *= s.w[a][j[a]];
-    }
-    let g = Vector::<T, D>::from_fn(|a, _| {
-        let mut ga = g_axis[a][j[a]];
-        for b in 0..D {
-            if b != a {
-                ga *= s.w[b][j[b]];
-            }
-        }
-        ga
-    });
-    let r = Vector::<T, D>::from_fn(|a, _| r_axis[a][j[a]]);
-    (w, g, r)
 }
 
 impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K, L> {
@@ -286,22 +244,35 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
                     let m = p.mass[i];
                     let mv = p.v[i] * m;
                     let mc = c * m;
+                    // `mls_stress · r w` has the form of the affine term `C r w`.
+                    let ms = mls_stress.unwrap_or(zero);
                     for (k, s) in st.iter().enumerate().take(L::GRIDS) {
                         let first = buf.index_of(k, &s.base);
-                        let (r_axis, g_axis) = axis_tables::<T, D, K>(s, h);
-                        for q in 0..nodes {
-                            let j = Stencil::<T, D>::local_of::<K>(q);
-                            let (w, g, r) = node_terms(s, &r_axis, &g_axis, &j);
-                            let momentum = (mv + mc * r) * w;
-                            let mut impulse = stress * g;
-                            if let Some(ms) = &mls_stress {
-                                impulse += ms * (r * w);
-                            }
+                        let f = AxisFactors::new::<K>(s, h);
+                        let index = |j: &[usize; D]| {
                             let mut idx = first;
                             for a in 0..D {
                                 idx += j[a] * strides[a];
                             }
-                            buf.add_at(idx, w * m, &momentum, &impulse);
+                            idx
+                        };
+                        if separate {
+                            let tm = f.scatter_tables::<K>(&mv, &mc, &zero);
+                            let ti = f.scatter_tables::<K>(&Vector::zeros(), &ms, &stress);
+                            for q in 0..nodes {
+                                let j = Stencil::<T, D>::local_of::<K>(q);
+                                let (e, w) = f.excluded(&j);
+                                let momentum = node_vector(&tm, &e, &j);
+                                let impulse = node_vector(&ti, &e, &j);
+                                buf.add_at(index(&j), w * m, &momentum, &impulse);
+                            }
+                        } else {
+                            let t = f.scatter_tables::<K>(&mv, &(mc + ms), &stress);
+                            for q in 0..nodes {
+                                let j = Stencil::<T, D>::local_of::<K>(q);
+                                let (e, w) = f.excluded(&j);
+                                buf.add_folded_at(index(&j), w * m, &node_vector(&t, &e, &j));
+                            }
                         }
                     }
                 }
@@ -346,15 +317,17 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
                 let view = grid.gather_view(homes[p] as usize);
                 for (k, s) in st.iter().enumerate().take(L::GRIDS) {
                     let ix = view.indexer(k, &s.base, K::NODES_PER_AXIS);
-                    let (r_axis, g_axis) = axis_tables::<T, D, K>(s, h);
+                    let f = AxisFactors::new::<K>(s, h);
                     for q in 0..per_grid {
                         let j = Stencil::<T, D>::local_of::<K>(q);
-                        let (w, grad, r) = node_terms(s, &r_axis, &g_axis, &j);
-                        let e = k * per_grid + q;
-                        ns[e] = ix.index(&j) as u32;
-                        vs[e] = match &d_inv {
-                            Some(di) => di * r * (w * gw),
-                            None => grad * gw,
+                        let (e, w) = f.excluded(&j);
+                        let slot = k * per_grid + q;
+                        ns[slot] = ix.index(&j) as u32;
+                        vs[slot] = match &d_inv {
+                            Some(di) => {
+                                di * Vector::<T, D>::from_fn(|a, _| f.r[a][j[a]]) * (w * gw)
+                            }
+                            None => Vector::<T, D>::from_fn(|a, _| f.g[a][j[a]] * e[a]) * gw,
                         };
                     }
                 }
@@ -401,23 +374,24 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
             let mut g = Gathered::zeros();
             for (k, s) in st.iter().enumerate().take(L::GRIDS) {
                 let ix = view.indexer(k, &s.base, K::NODES_PER_AXIS);
-                let (r_axis, g_axis) = axis_tables::<T, D, K>(s, h);
+                let f = AxisFactors::new::<K>(s, h);
+                let mut sums = SliceSums::zeros();
                 for q in 0..nodes {
                     let j = Stencil::<T, D>::local_of::<K>(q);
                     let idx = ix.index(&j);
                     let vi = view.velocity_at(idx);
-                    let (w, grad, r) = node_terms(s, &r_axis, &g_axis, &j);
-                    let wv = vi * w;
-                    g.velocity += wv;
+                    let (e, w) = f.excluded(&j);
+                    sums.add(&j, &e, &vi);
                     if needs.old_velocity {
                         g.velocity_change += (vi - view.velocity_old_at(idx)) * w;
                     }
-                    if needs.affine_moment {
-                        g.affine_moment += wv * r.transpose();
-                    }
-                    if needs.velocity_gradient {
-                        g.velocity_gradient += vi * grad.transpose();
-                    }
+                }
+                g.velocity += sums.velocity::<K>(&f);
+                if needs.affine_moment {
+                    g.affine_moment += sums.affine_moment::<K>(&f);
+                }
+                if needs.velocity_gradient {
+                    g.velocity_gradient += sums.velocity_gradient::<K>(&f);
                 }
             }
             g.velocity *= gw;

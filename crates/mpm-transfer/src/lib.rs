@@ -16,6 +16,7 @@ pub mod particles;
 mod pic;
 mod reference_step;
 pub mod scheme;
+mod separable;
 pub mod timestep;
 
 pub use apic::Apic;

@@ -1,0 +1,163 @@
+//! Tensor-product evaluation of the P2G and G2P node sums.
+//!
+//! Every node term of a transfer is built from per-axis factors of one stencil:
+//! `w = Πₐ wₐ[jₐ]`, `∇w_a = gₐ[jₐ] Π_{b≠a} w_b[j_b]` and `r_a = rₐ[jₐ]`. Grouping each
+//! term by the one axis it does not share turns the per-node work from `O(D²)`
+//! (building `∇w`, `r`, then two matrix–vector products) into `O(D)`:
+//!
+//! - P2G (`node_vector`): `w (c₀ + C r) + S ∇w = Σₐ eₐ Aₐ[jₐ]` with the excluded
+//!   products `eₐ = Π_{b≠a} w_b[j_b]` and the per-axis tables
+//!   `A₀[j] = w₀[j] (c₀ + r₀[j] C₀) + g₀[j] S₀`, `Aₐ[j] = wₐ[j] rₐ[j] Cₐ + gₐ[j] Sₐ`
+//!   (`Cₐ`, `Sₐ` the columns), since `e₀ w₀ = w`, `eₐ wₐ rₐ = w rₐ` and
+//!   `eₐ gₐ = ∇w_a`.
+//! - G2P (`SliceSums`): with `Pₐ[j] = Σ_{nodes with jₐ = j} eₐ vᵢ`,
+//!   `Σ w vᵢ = Σⱼ w₀[j] P₀[j]`, the column `a` of `Σ w vᵢ rᵀ` is `Σⱼ wₐ[j] rₐ[j] Pₐ[j]`
+//!   and that of `Σ vᵢ ∇wᵀ` is `Σⱼ gₐ[j] Pₐ[j]`.
+//!
+//! Exactly the sums of the node-by-node form in another order (round-off apart:
+//! `tests/optimised_matches_reference.rs`).
+
+use mpm_kernels::{Kernel, Stencil, MAX_NODES_PER_AXIS};
+use mpm_math::{Matrix, Real, Vector};
+
+/// Per-axis factors of one stencil: weights `w`, physical derivatives `g = N'/h` and
+/// offsets `r = (j − frac)·h`.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct AxisFactors<T, const D: usize> {
+    pub w: [[T; MAX_NODES_PER_AXIS]; D],
+    pub g: [[T; MAX_NODES_PER_AXIS]; D],
+    pub r: [[T; MAX_NODES_PER_AXIS]; D],
+}
+
+impl<T: Real, const D: usize> AxisFactors<T, D> {
+    #[inline(always)]
+    pub fn new<K: Kernel>(s: &Stencil<T, D>, h: T) -> Self {
+        let mut r = [[T::zero(); MAX_NODES_PER_AXIS]; D];
+        let mut g = [[T::zero(); MAX_NODES_PER_AXIS]; D];
+        for a in 0..D {
+            for j in 0..K::NODES_PER_AXIS {
+                r[a][j] = (T::lit(j as f64) - s.frac[a]) * h;
+                g[a][j] = s.dw[a][j] * s.inv_h;
+            }
+        }
+        AxisFactors { w: s.w, g, r }
+    }
+
+    /// The excluded products `eₐ = Π_{b≠a} w_b[j_b]` and the weight `w` of node `j`.
+    #[inline(always)]
+    pub fn excluded(&self, j: &[usize; D]) -> ([T; D], T) {
+        // Prefix and suffix products: no division (a 1-D weight may be zero).
+        let mut e = [T::one(); D];
+        let mut prefix = T::one();
+        for a in 0..D {
+            e[a] = prefix;
+            prefix *= self.w[a][j[a]];
+        }
+        let mut suffix = T::one();
+        for a in (0..D).rev() {
+            e[a] *= suffix;
+            suffix *= self.w[a][j[a]];
+        }
+        (e, prefix)
+    }
+
+    /// The tables `Aₐ[j]` of `w (c₀ + C r) + S ∇w` (module docs).
+    #[inline(always)]
+    pub fn scatter_tables<K: Kernel>(
+        &self,
+        c0: &Vector<T, D>,
+        c: &Matrix<T, D>,
+        s: &Matrix<T, D>,
+    ) -> [[Vector<T, D>; MAX_NODES_PER_AXIS]; D] {
+        let mut t = [[Vector::<T, D>::zeros(); MAX_NODES_PER_AXIS]; D];
+        for a in 0..D {
+            let ca = c.column(a).into_owned();
+            let sa = s.column(a).into_owned();
+            for j in 0..K::NODES_PER_AXIS {
+                let w = self.w[a][j];
+                let mut v = ca * (w * self.r[a][j]) + sa * self.g[a][j];
+                if a == 0 {
+                    v += c0 * w;
+                }
+                t[a][j] = v;
+            }
+        }
+        t
+    }
+}
+
+/// `Σₐ eₐ Aₐ[jₐ]`: node `j`'s share of the tables from
+/// [`AxisFactors::scatter_tables`].
+#[inline(always)]
+pub(crate) fn node_vector<T: Real, const D: usize>(
+    tables: &[[Vector<T, D>; MAX_NODES_PER_AXIS]; D],
+    e: &[T; D],
+    j: &[usize; D],
+) -> Vector<T, D> {
+    let mut v = tables[0][j[0]] * e[0];
+    for a in 1..D {
+        v += tables[a][j[a]] * e[a];
+    }
+    v
+}
+
+/// The slice sums `Pₐ[j]` of a gather (module docs).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct SliceSums<T: Real, const D: usize> {
+    p: [[Vector<T, D>; MAX_NODES_PER_AXIS]; D],
+}
+
+impl<T: Real, const D: usize> SliceSums<T, D> {
+    #[inline(always)]
+    pub fn zeros() -> Self {
+        SliceSums {
+            p: [[Vector::<T, D>::zeros(); MAX_NODES_PER_AXIS]; D],
+        }
+    }
+
+    /// Adds node `j`'s velocity with its excluded products `e`.
+    #[inline(always)]
+    pub fn add(&mut self, j: &[usize; D], e: &[T; D], v: &Vector<T, D>) {
+        for a in 0..D {
+            self.p[a][j[a]] += v * e[a];
+        }
+    }
+
+    /// `Σ w vᵢ`.
+    #[inline(always)]
+    pub fn velocity<K: Kernel>(&self, f: &AxisFactors<T, D>) -> Vector<T, D> {
+        let mut v = Vector::<T, D>::zeros();
+        for j in 0..K::NODES_PER_AXIS {
+            v += self.p[0][j] * f.w[0][j];
+        }
+        v
+    }
+
+    /// `Σ w vᵢ rᵀ`.
+    #[inline(always)]
+    pub fn affine_moment<K: Kernel>(&self, f: &AxisFactors<T, D>) -> Matrix<T, D> {
+        let mut b = Matrix::<T, D>::zeros();
+        for a in 0..D {
+            let mut col = Vector::<T, D>::zeros();
+            for j in 0..K::NODES_PER_AXIS {
+                col += self.p[a][j] * (f.w[a][j] * f.r[a][j]);
+            }
+            b.set_column(a, &col);
+        }
+        b
+    }
+
+    /// `Σ vᵢ ∇wᵀ`.
+    #[inline(always)]
+    pub fn velocity_gradient<K: Kernel>(&self, f: &AxisFactors<T, D>) -> Matrix<T, D> {
+        let mut l = Matrix::<T, D>::zeros();
+        for a in 0..D {
+            let mut col = Vector::<T, D>::zeros();
+            for j in 0..K::NODES_PER_AXIS {
+                col += self.p[a][j] * f.g[a][j];
+            }
+            l.set_column(a, &col);
+        }
+        l
+    }
+}
