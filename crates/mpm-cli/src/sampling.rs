@@ -39,7 +39,12 @@ pub fn estimated_particles(shape: &Shape, dim: usize, h: f64, ppc: usize) -> Opt
             2 => std::f64::consts::PI * radius * radius,
             _ => 4.0 / 3.0 * std::f64::consts::PI * radius.powi(3),
         },
-        Shape::Cylinder { radius, length, .. } => std::f64::consts::PI * radius * radius * length,
+        Shape::Cylinder {
+            radius,
+            length,
+            inner_radius,
+            ..
+        } => std::f64::consts::PI * (radius * radius - inner_radius * inner_radius) * length,
         Shape::Mesh { .. } => shape.solid_mesh()?.ok()?.mesh.signed_volume().abs(),
     };
     Some(volume * ppc as f64 / h.powi(dim as i32))
@@ -72,6 +77,7 @@ pub fn bounding_box(shape: &Shape, dim: usize) -> Option<([f64; 3], [f64; 3])> {
             axis,
             radius,
             length,
+            ..
         } => {
             let axis = unit_axis(axis)?;
             if dim != 3 || center.len() != 3 {
@@ -142,12 +148,13 @@ fn inside(shape: &Shape, dim: usize, p: &[f64; 3], axis: &[f64; 3]) -> bool {
             center,
             radius,
             length,
+            inner_radius,
             ..
         } => {
             let d = [p[0] - center[0], p[1] - center[1], p[2] - center[2]];
             let along = d[0] * axis[0] + d[1] * axis[1] + d[2] * axis[2];
             let r2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2] - along * along;
-            along.abs() < 0.5 * length && r2 < radius * radius
+            along.abs() < 0.5 * length && r2 < radius * radius && r2 >= inner_radius * inner_radius
         }
         // Meshes are tested in batches by `visit_samples`.
         Shape::Mesh { .. } => false,

@@ -437,12 +437,15 @@ pub enum Shape {
         min: Vec<f64>,
         max: Vec<f64>,
     },
-    /// 3-D only: `length` along `axis` (any non-zero vector), centred on `center`.
+    /// 3-D only: `length` along `axis` (any non-zero vector), centred on `center`;
+    /// hollow (a tube) when `inner_radius > 0`.
     Cylinder {
         center: Vec<f64>,
         axis: Vec<f64>,
         radius: f64,
         length: f64,
+        #[serde(default)]
+        inner_radius: f64,
     },
     /// 3-D only: the solid bounded by a closed triangle mesh (`.obj` or `.stl`), placed
     /// by `x ↦ R(scale·x) + translate` with `R` from the Euler angles `rotate` (degrees,
@@ -1481,6 +1484,7 @@ impl Scene {
                     axis,
                     radius,
                     length,
+                    inner_radius,
                 } => {
                     if dim != 3 {
                         return Err(c.err(
@@ -1500,6 +1504,13 @@ impl Scene {
                     }
                     c.positive(&k("shape.radius"), *radius)?;
                     c.positive(&k("shape.length"), *length)?;
+                    if !(*inner_radius >= 0.0 && inner_radius < radius) {
+                        return Err(c.err(
+                            &k("shape.inner_radius"),
+                            format!("{inner_radius} is not in [0, radius = {radius})"),
+                            "Give 0 for a solid cylinder, or the radius of the bore of a tube (below `radius`)",
+                        ));
+                    }
                 }
                 Shape::Mesh {
                     path,

@@ -221,6 +221,17 @@ pub(crate) struct RunData {
     pub(crate) stats: StatsTable,
 }
 
+impl RunData {
+    /// Positions at the last frame (initial position plus displacement).
+    pub(crate) fn final_positions(&self) -> Vec<[f64; 3]> {
+        self.start
+            .iter()
+            .zip(&self.displacement)
+            .map(|(x, d)| [x[0] + d[0], x[1] + d[1], x[2] + d[2]])
+            .collect()
+    }
+}
+
 fn last_frame(dir: &Path) -> Result<PathBuf, String> {
     let mut frames: Vec<PathBuf> = std::fs::read_dir(dir.join("frames"))
         .map_err(|e| e.to_string())?

@@ -74,6 +74,17 @@ fn all_points_inside_their_shape() {
                 axis: vec![1.0, 1.0, 0.0],
                 radius: 0.1,
                 length: 0.4,
+                inner_radius: 0.0,
+            },
+            3,
+        ),
+        (
+            Shape::Cylinder {
+                center: vec![0.5, 0.5, 0.5],
+                axis: vec![1.0, 1.0, 0.0],
+                radius: 0.1,
+                length: 0.4,
+                inner_radius: 0.06,
             },
             3,
         ),
@@ -105,12 +116,17 @@ fn all_points_inside_their_shape() {
                     Shape::Box { min, max } => {
                         assert!((0..*dim).all(|a| p[a] >= min[a] && p[a] < max[a]));
                     }
-                    Shape::Cylinder { center, .. } => {
+                    Shape::Cylinder {
+                        center,
+                        inner_radius,
+                        ..
+                    } => {
                         let s = 0.5f64.sqrt();
                         let d = [p[0] - center[0], p[1] - center[1], p[2] - center[2]];
                         let along = (d[0] + d[1]) * s;
                         let r2 = d.iter().map(|x| x * x).sum::<f64>() - along * along;
                         assert!(along.abs() < 0.2 + 1e-12 && r2 < 0.01 + 1e-12);
+                        assert!(r2 >= inner_radius * inner_radius - 1e-12);
                     }
                     Shape::Mesh { .. } => unreachable!(),
                 }
@@ -146,6 +162,17 @@ fn particle_estimate_matches_sampling() {
                 axis: vec![1.0, 1.0, 0.0],
                 radius: 0.08,
                 length: 0.3,
+                inner_radius: 0.0,
+            },
+            3,
+        ),
+        (
+            Shape::Cylinder {
+                center: vec![0.5, 0.5, 0.5],
+                axis: vec![0.0, 1.0, 0.0],
+                radius: 0.1,
+                length: 0.3,
+                inner_radius: 0.07,
             },
             3,
         ),

@@ -815,6 +815,20 @@ fn body_errors() {
         &["body.2.shape.axis", "non-zero"],
     );
     bad(
+        FULL_3D,
+        &["body.2.shape.inner_radius=0.1"],
+        &[
+            "body.2.shape.inner_radius",
+            "not in [0, radius = 0.1)",
+            "bore",
+        ],
+    );
+    bad(
+        FULL_3D,
+        &["body.2.shape.inner_radius=-0.01"],
+        &["body.2.shape.inner_radius", "not in [0, radius"],
+    );
+    bad(
         MIN_2D,
         &["body.0.shape={ type = \"cylinder\", center = [0.5, 0.5], axis = [0, 1], radius = 0.1, length = 0.1 }"],
         &["body.0.shape", "3-D only"],
