@@ -8,30 +8,16 @@
 //! Thresholds: compact ≥ 0.95 (anything the wall takes is contact the kernel should
 //! not make), quadratic ≤ 0.5 (held back by at least half).
 
-use mpm::cli::run::{run_scene, RunOptions};
-use mpm::cli::scene::load_scene;
-use std::path::Path;
+mod common;
 
 /// The ball's descent over 0.1 s divided by `g t²/2`.
 fn descent_over_free_fall(kernel: &str) -> f64 {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/ball_in_tube.toml");
     let sets = [
         format!("simulation.kernel={kernel}"),
         "simulation.end_time=0.1".to_string(),
         "simulation.frame_dt=0.1".to_string(),
     ];
-    let scene = load_scene(&path, &sets).unwrap();
-    let dir = tempfile::tempdir().unwrap();
-    let opts = RunOptions {
-        out: dir.path().to_path_buf(),
-        max_frames: None,
-        progress: false,
-        origin: kernel.into(),
-        threads: 2,
-        checkpoint_every: None,
-        source: None,
-    };
-    run_scene(&scene, &opts).unwrap();
+    let (_, dir) = common::run_shipped("ball_in_tube.toml", &sets, kernel);
     let stats = std::fs::read_to_string(dir.path().join("stats.csv")).unwrap();
     let mut lines = stats.lines();
     let header: Vec<&str> = lines.next().unwrap().split(',').collect();

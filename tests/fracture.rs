@@ -14,31 +14,16 @@
 //! them.
 
 use mpm::cli::output::read_ply_positions;
-use mpm::cli::run::{run_scene, RunOptions};
-use mpm::cli::scene::load_scene;
 use mpm::transfer::connected_components;
-use std::path::Path;
+
+mod common;
 
 /// Pieces of the cloud at the first output frame (`frame_dt` = the whole run).
 fn pieces_of(scene: &str, base: &[&str], reference: &str, extra: &[&str]) -> usize {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("scenes")
-        .join(scene);
     let mut sets: Vec<String> = base.iter().map(|s| s.to_string()).collect();
     sets.push(format!("simulation.reference={reference}"));
     sets.extend(extra.iter().map(|s| s.to_string()));
-    let scene = load_scene(&path, &sets).unwrap();
-    let dir = tempfile::tempdir().unwrap();
-    let opts = RunOptions {
-        out: dir.path().to_path_buf(),
-        max_frames: None,
-        progress: false,
-        origin: reference.into(),
-        threads: 2,
-        checkpoint_every: None,
-        source: None,
-    };
-    run_scene(&scene, &opts).unwrap();
+    let (scene, dir) = common::run_shipped(scene, &sets, reference);
     let bytes = std::fs::read(dir.path().join("frames/frame_00001.ply")).unwrap();
     let cloud = read_ply_positions(&bytes).unwrap();
     let h = scene.simulation.h;

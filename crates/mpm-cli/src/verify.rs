@@ -361,6 +361,16 @@ fn diffusion_jelly(opts: &VerifyOptions, sticky: bool) -> Result<CheckResult, Ve
     })
 }
 
+/// The layout each kernel is published with: compact on the dual grid (CK-MPM),
+/// the B-splines on one grid.
+fn grid_for(kernel: &str) -> &'static str {
+    if kernel == "compact" {
+        "dual"
+    } else {
+        "single"
+    }
+}
+
 /// Pieces of a run's particle cloud at its last frame, particles closer than `h`
 /// linked (the distance across which the grid still carries force between them).
 fn pieces(data: &RunData, h: f64) -> usize {
@@ -389,14 +399,7 @@ fn contact_ball_in_tube(opts: &VerifyOptions) -> Result<Vec<CheckResult>, Verify
             BALL_IN_TUBE,
             &[
                 &format!("simulation.kernel={kernel}"),
-                &format!(
-                    "simulation.grid={}",
-                    if kernel == "compact" {
-                        "dual"
-                    } else {
-                        "single"
-                    }
-                ),
+                &format!("simulation.grid={}", grid_for(kernel)),
                 &format!("simulation.h={h}"),
                 &format!("body.0.shape.center=[0.5, {tube_center}, 0.5]"),
                 &format!("body.0.shape.radius={}", bore + wall),
@@ -484,14 +487,7 @@ fn fracture_twisting_bar(opts: &VerifyOptions) -> Result<CheckResult, VerifyErro
             &[
                 &format!("simulation.h={h}"),
                 &format!("simulation.kernel={kernel}"),
-                &format!(
-                    "simulation.grid={}",
-                    if kernel == "compact" {
-                        "dual"
-                    } else {
-                        "single"
-                    }
-                ),
+                &format!("simulation.grid={}", grid_for(kernel)),
                 "simulation.reference=eulerian",
                 "simulation.frame_dt=3.0",
                 &format!("body.0.particles_per_cell={ppc}"),
