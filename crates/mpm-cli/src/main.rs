@@ -622,13 +622,14 @@ fn main() -> ExitCode {
                 let json = |x: &dyn erased::Ser| name(x.to_json());
                 let memory = scene.memory_estimate();
                 println!(
-                    "{origin}: OK: {}-D {}, kernel {} on a {} grid, {} transfer, {} bodies, {particles} particles, end_time {} s, about {} of memory",
+                    "{origin}: OK: {}-D {}, kernel {} on a {} grid, {} transfer, {} {}, {particles} particles, end_time {} s, about {} of memory",
                     s.dim,
                     json(&s.precision),
                     json(&s.kernel),
                     json(&s.grid),
                     json(&s.transfer),
                     scene.body.len(),
+                    if scene.body.len() == 1 { "body" } else { "bodies" },
                     s.end_time,
                     mpm_cli::scene::human_bytes(memory.total_bytes())
                 );
