@@ -10,7 +10,7 @@
 use crate::output::{read_ply_columns, write_atomic};
 use image::codecs::gif::{GifEncoder, Repeat};
 use image::{Delay, Frame, Rgb, RgbImage, RgbaImage};
-use imageproc::drawing::{draw_filled_circle_mut, draw_line_segment_mut};
+use plotters::prelude::{BitMapBackend, DrawingBackend, RGBColor};
 use std::path::{Path, PathBuf};
 
 /// What colours the particles.
@@ -230,46 +230,61 @@ fn draw(
     color: ColorBy,
     (vmin, vmax): (f64, f64),
 ) -> RgbImage {
-    let mut img = RgbImage::from_pixel(cam.size.0, cam.size.1, BACKGROUND);
-    let (dim, corners) = (cam.dim, box_corners(cam.lo, cam.hi));
-    let edges = (0..8usize)
-        .flat_map(|a| (0..3).map(move |k| (a, a ^ (1 << k))))
-        .filter(|&(a, b)| a < b);
-    for (a, b) in edges {
-        if dim == 2 && (a >= 4 || b >= 4) {
-            continue;
-        }
-        let (pa, pb) = (cam.project(&corners[a]), cam.project(&corners[b]));
-        draw_line_segment_mut(&mut img, (pa.0, pa.1), (pb.0, pb.1), BOX_EDGE);
-    }
-    let mut order: Vec<(f64, usize)> = frame
-        .x
+    let (w, h) = cam.size;
+    let mut buf: Vec<u8> = BACKGROUND
+        .0
         .iter()
-        .enumerate()
-        .map(|(i, x)| (cam.project(x).2, i))
-        .filter(|(d, _)| d.is_finite())
+        .copied()
+        .cycle()
+        .take(w as usize * h as usize * 3)
         .collect();
-    order.sort_by(|a, b| a.0.total_cmp(&b.0));
-    for (depth, i) in order {
-        let (px, py, _) = cam.project(&frame.x[i]);
-        let base = match color {
-            ColorBy::Material => PALETTE[frame.material[i] as usize % PALETTE.len()],
-            ColorBy::Speed => speed_color(if vmax > vmin {
-                (frame.speed[i] - vmin) / (vmax - vmin)
-            } else {
-                0.0
-            }),
-        };
-        let s = cam.shade(depth);
-        let rgb = Rgb(base.map(|c| (c as f64 * s).round() as u8));
-        draw_filled_circle_mut(
-            &mut img,
-            (px.round() as i32, py.round() as i32),
-            radius,
-            rgb,
-        );
+    {
+        // Drawing into an in-memory RGB buffer cannot fail: the backend's errors are
+        // about files, which this one never touches.
+        let mut canvas = BitMapBackend::with_buffer(&mut buf, (w, h));
+        let (dim, corners) = (cam.dim, box_corners(cam.lo, cam.hi));
+        let edges = (0..8usize)
+            .flat_map(|a| (0..3).map(move |k| (a, a ^ (1 << k))))
+            .filter(|&(a, b)| a < b);
+        let pixel = |p: (f32, f32)| (p.0.round() as i32, p.1.round() as i32);
+        for (a, b) in edges {
+            if dim == 2 && (a >= 4 || b >= 4) {
+                continue;
+            }
+            let (pa, pb) = (cam.project(&corners[a]), cam.project(&corners[b]));
+            let edge = RGBColor(BOX_EDGE.0[0], BOX_EDGE.0[1], BOX_EDGE.0[2]);
+            let _ = canvas.draw_line(pixel((pa.0, pa.1)), pixel((pb.0, pb.1)), &edge);
+        }
+        let mut order: Vec<(f64, usize)> = frame
+            .x
+            .iter()
+            .enumerate()
+            .map(|(i, x)| (cam.project(x).2, i))
+            .filter(|(d, _)| d.is_finite())
+            .collect();
+        order.sort_by(|a, b| a.0.total_cmp(&b.0));
+        for (depth, i) in order {
+            let (px, py, _) = cam.project(&frame.x[i]);
+            let base = match color {
+                ColorBy::Material => PALETTE[frame.material[i] as usize % PALETTE.len()],
+                ColorBy::Speed => speed_color(if vmax > vmin {
+                    (frame.speed[i] - vmin) / (vmax - vmin)
+                } else {
+                    0.0
+                }),
+            };
+            let s = cam.shade(depth);
+            let [r, g, b] = base.map(|c| (c as f64 * s).round() as u8);
+            let _ = canvas.draw_circle(
+                pixel((px, py)),
+                radius.max(0) as u32,
+                &RGBColor(r, g, b),
+                true,
+            );
+        }
     }
-    img
+    // The buffer has exactly w·h·3 bytes by construction.
+    RgbImage::from_raw(w, h, buf).unwrap_or_else(|| RgbImage::from_pixel(w, h, BACKGROUND))
 }
 
 /// Frame files `DIR/frames/frame_*.ply`, in order.
