@@ -13,6 +13,7 @@ pub mod updated_lagrangian;
 
 pub use reference::{Adaptive, Eulerian, Reference, ReferenceConfig, TotalLagrangian};
 pub use simulation::{
-    Simulation, SimulationError, SimulationSnapshot, SolverTotals, StepFailure, TimeStepPolicy,
+    DistributeError, Simulation, SimulationError, SimulationSnapshot, SolverTotals, StepFailure,
+    TimeStepPolicy,
 };
 pub use updated_lagrangian::{LagrangianSnapshot, ReferenceState, UpdatedLagrangianStepper};

@@ -5,6 +5,7 @@ use crate::reference::Reference;
 use crate::updated_lagrangian::{LagrangianSnapshot, UpdatedLagrangianStepper};
 use mpm_constitutive::Material;
 use mpm_grid::BlockSparseGrid;
+use mpm_grid::Transport;
 use mpm_grid::{Collider, GridLayout};
 use mpm_implicit::{
     implicit_eulerian_step, GridSolve, ImplicitStepError, Integrator, NewtonSettings, SolveError,
@@ -13,8 +14,8 @@ use mpm_implicit::{
 use mpm_kernels::Kernel;
 use mpm_math::{Real, Vector};
 use mpm_transfer::{
-    cfl_time_step, max_speed, particle_totals, ExplicitStepper, Particles, PhaseTimes, StepError,
-    StepParams, Totals, Transfer,
+    cfl_time_step, max_speed, particle_totals, Decomposition, ExplicitStepper, Particles,
+    PhaseTimes, StepError, StepParams, Totals, Transfer,
 };
 
 /// How the step size is chosen.
@@ -181,8 +182,21 @@ pub struct Simulation<T: Real, const D: usize, K: Kernel, L: GridLayout> {
     /// Implicit-solver statistics so far.
     pub solver: SolverTotals,
     implicit: Option<Box<GridSolve<T, D>>>,
+    decomposition: Option<Decomposition>,
     wave_speed: T,
     kinematic_viscosity: T,
+}
+
+/// A simulation that cannot be split over ranks, with the scene key that decides it.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[error("`{key}` is \"{value}\": {reason}")]
+pub struct DistributeError {
+    /// Dotted scene key.
+    pub key: &'static str,
+    /// Its value.
+    pub value: &'static str,
+    /// Why, and what to use instead.
+    pub reason: &'static str,
 }
 
 impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Simulation<T, D, K, L> {
@@ -233,9 +247,84 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Simulation<T, D, K, L> {
             newton: NewtonSettings::default(),
             solver: SolverTotals::default(),
             implicit: None,
+            decomposition: None,
             wave_speed,
             kinematic_viscosity,
         }
+    }
+
+    /// Runs this simulation as one rank of a domain decomposition over `transport`
+    /// (every rank builds the same simulation and calls this before the first step):
+    /// it keeps its share of the particles, and every step is the one a single
+    /// process takes, bit for bit ([`mpm_transfer::distributed`]). Eulerian reference
+    /// and explicit integrator only: the stored Lagrangian stencils and the global
+    /// implicit solve are single-process. Call it after [`Self::set_reference`] and
+    /// [`Self::set_integrator`].
+    pub fn distribute(&mut self, transport: Box<dyn Transport>) -> Result<(), DistributeError> {
+        if self.integrator != Integrator::Explicit {
+            return Err(DistributeError {
+                key: "simulation.integrator",
+                value: if self.integrator == Integrator::Implicit { "implicit" } else { "semi-implicit" },
+                reason: "the implicit solve couples the whole grid and runs in one process: set `integrator = \"explicit\"` to run on several ranks, or run on one rank (without --ranks, or `mpirun -n 1`)",
+            });
+        }
+        let Stepper::Eulerian(st) = &mut self.stepper else {
+            return Err(DistributeError {
+                key: "simulation.reference",
+                value: crate::ReferenceConfig::name(&self.reference),
+                reason: "total-Lagrangian and adaptive bodies keep stencils into their own lattice and run in one process: set `reference = \"eulerian\"` to run on several ranks, or run on one rank (without --ranks, or `mpirun -n 1`)",
+            });
+        };
+        let mut dec = Decomposition::new(transport);
+        st.take_share(&mut self.particles, self.params.h, &mut dec);
+        self.decomposition = Some(dec);
+        Ok(())
+    }
+
+    /// The decomposition this rank is part of, if any.
+    pub fn decomposition(&self) -> Option<&Decomposition> {
+        self.decomposition.as_ref()
+    }
+
+    /// This rank's index (0 when not decomposed): rank 0 writes the output.
+    pub fn rank(&self) -> usize {
+        self.decomposition.as_ref().map_or(0, Decomposition::rank)
+    }
+
+    /// In a decomposed run, rank 0 gets every rank's particles in the single-process
+    /// storage order and the others `None`; `None` when not decomposed (the
+    /// particles are all here). Collective.
+    pub fn gather_particles(&mut self) -> Option<Particles<T, D>> {
+        let dec = self.decomposition.as_mut()?;
+        let all = dec.gather_particles(&self.particles)?;
+        // Before the first step a single process holds its particles in creation
+        // order (the first step sorts them); match it, so totals sum alike.
+        Some(if self.steps == 0 {
+            all.gather(&all.index_by_id())
+        } else {
+            all
+        })
+    }
+
+    /// Every rank's particle count and communication counters, in rank order;
+    /// `None` when not decomposed. Collective.
+    pub fn decomposition_report(&mut self) -> Option<Vec<(usize, mpm_transfer::CommStats)>> {
+        let n = self.particles.len();
+        self.decomposition.as_mut().map(|dec| dec.gather_stats(n))
+    }
+
+    /// Whether `ok` holds on every rank (`ok` itself when not decomposed). Collective.
+    pub fn all_ok(&mut self, ok: bool) -> bool {
+        match &mut self.decomposition {
+            Some(dec) => dec.all_ok(ok),
+            None => ok,
+        }
+    }
+
+    /// Totals of `particles` (e.g. gathered from every rank) with this simulation's
+    /// materials; Eulerian (no reference-state correction).
+    pub fn totals_of(&self, particles: &Particles<T, D>) -> Totals {
+        particle_totals::<T, D, K, L>(particles, &self.materials, self.params.h)
     }
 
     /// Largest elastic wave speed over the materials.
@@ -322,6 +411,15 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Simulation<T, D, K, L> {
         if adaptive {
             dt = dt.min(self.solver.dt_cap);
         }
+        if let Some(dec) = &mut self.decomposition {
+            // The smallest rank's step: the CFL step of the fastest particle anywhere,
+            // exactly the single-process value (the rule decreases with speed).
+            dt = -dec
+                .all_gather(&[-dt])
+                .iter()
+                .map(|v| v[0])
+                .fold(f64::NEG_INFINITY, f64::max);
+        }
         let mut retries = 0;
         loop {
             match self.try_step(dt) {
@@ -347,8 +445,22 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Simulation<T, D, K, L> {
     fn try_step(&mut self, dt: f64) -> Result<f64, SimulationError> {
         self.params.dt = T::lit(dt);
         self.params.time = T::lit(self.time);
-        let result: Result<(), StepFailure> = match (&mut self.stepper, &mut self.implicit) {
-            (Stepper::Eulerian(st), None) => st
+        let stepper = (
+            &mut self.stepper,
+            &mut self.implicit,
+            &mut self.decomposition,
+        );
+        let result: Result<(), StepFailure> = match stepper {
+            (Stepper::Eulerian(st), None, Some(dec)) => st
+                .step_distributed(
+                    &mut self.particles,
+                    &self.materials,
+                    &self.transfer,
+                    &self.params,
+                    dec,
+                )
+                .map_err(StepFailure::from),
+            (Stepper::Eulerian(st), None, None) => st
                 .step(
                     &mut self.particles,
                     &self.materials,
@@ -356,7 +468,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Simulation<T, D, K, L> {
                     &self.params,
                 )
                 .map_err(StepFailure::from),
-            (Stepper::Lagrangian(st), None) => st
+            (Stepper::Lagrangian(st), None, _) => st
                 .step(
                     &mut self.particles,
                     &self.materials,
@@ -365,7 +477,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Simulation<T, D, K, L> {
                 )
                 .map(|_| ())
                 .map_err(StepFailure::from),
-            (Stepper::Eulerian(st), Some(solve)) => implicit_eulerian_step(
+            (Stepper::Eulerian(st), Some(solve), _) => implicit_eulerian_step(
                 st,
                 solve,
                 &mut self.particles,
@@ -377,7 +489,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Simulation<T, D, K, L> {
             )
             .map(|stats| self.solver.add(&stats))
             .map_err(StepFailure::from),
-            (Stepper::Lagrangian(st), Some(solve)) => st
+            (Stepper::Lagrangian(st), Some(solve), _) => st
                 .step_implicit(
                     &mut self.particles,
                     &self.materials,

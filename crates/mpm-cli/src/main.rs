@@ -3,7 +3,7 @@
 use clap::{Parser, Subcommand};
 use mpm_cli::bench;
 use mpm_cli::checkpoint::SceneSource;
-use mpm_cli::run::{resume_run, run_scene, Resumed, RunOptions};
+use mpm_cli::run::{resume_run, run_scene_on, run_scene_ranks, Resumed, RunOptions};
 use mpm_cli::scene::{load_scene, parse_scene, OutputFormat, Scene, SceneError};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -41,6 +41,14 @@ enum Command {
         /// `mpm resume OUT` then continues bit-identically.
         #[arg(long, value_name = "N")]
         checkpoint_every: Option<usize>,
+        /// Split the domain into K slabs along the last axis, each run by its own rank
+        /// (a thread of this process; ranks exchange halo buffers and migrating
+        /// particles). The output is the one-rank run's, bit for bit; summary.json
+        /// reports the traffic. The same decomposition runs across processes with
+        /// `mpirun -n K mpm run` in a build with `--features mpi`. Explicit, Eulerian
+        /// scenes.
+        #[arg(long, value_name = "K")]
+        ranks: Option<usize>,
     },
     /// Reproduce the papers' evidence: momentum and angular momentum conservation,
     /// numerical diffusion and speed of compact vs quadratic (CK-MPM), convergence of
@@ -647,7 +655,12 @@ fn main() -> ExitCode {
             threads,
             frames,
             checkpoint_every,
+            ranks,
         } => {
+            if ranks == Some(0) {
+                eprintln!("error: --ranks must be at least 1 (the number of slabs to split the domain into)");
+                return ExitCode::FAILURE;
+            }
             let (scene_def, origin, stem) = match load(scene.as_ref(), &set) {
                 Ok(x) => x,
                 Err(e) => {
@@ -689,7 +702,33 @@ fn main() -> ExitCode {
                 files.push("frames/frame_*.vtu, frames.pvd");
             }
             files.extend(["stats.csv", "summary.json"]);
-            match pool.install(|| run_scene(&scene, &opts)) {
+            let launched = match mpm_cli::launched_ranks() {
+                Ok(t) => t,
+                Err(e) => {
+                    eprintln!("error: {e}");
+                    return ExitCode::FAILURE;
+                }
+            };
+            // Under mpirun only rank 0 speaks (every rank sees the same outcome).
+            let rank = launched.as_ref().map_or(0, |t| t.rank());
+            let result = match (launched, ranks) {
+                (Some(t), Some(k)) if k > 1 => {
+                    if t.rank() == 0 {
+                        eprintln!("error: --ranks {k} under an MPI launcher with {} ranks: use one or the other (mpirun splits the domain across processes already)", t.ranks());
+                    }
+                    return ExitCode::FAILURE;
+                }
+                (Some(t), _) => pool.install(|| run_scene_on(&scene, &opts, t)),
+                (None, k) => pool.install(|| run_scene_ranks(&scene, &opts, k.unwrap_or(1))),
+            };
+            if rank != 0 {
+                return if result.is_ok() {
+                    ExitCode::SUCCESS
+                } else {
+                    ExitCode::FAILURE
+                };
+            }
+            match result {
                 Ok(r) => {
                     println!(
                         "wrote {} frames ({} particles, {} steps, {:.1} s) to {}/: {}",

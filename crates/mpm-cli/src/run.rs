@@ -16,11 +16,14 @@ use mpm_constitutive::{
     ConstitutiveError, DruckerPrager, ElasticModel, FixedCorotated, HenckyElasticity, JFluid, Lame,
     Material, Nacc, NeoHookean, Snow, StateNeeds, VonMises,
 };
-use mpm_grid::{domain_walls, Collider, ColliderShape, ContactKind, Dual, GridLayout, Single};
+use mpm_grid::{
+    domain_walls, Collider, ColliderShape, ContactKind, Dual, GridLayout, LocalTransport, Single,
+    Transport,
+};
 use mpm_implicit::{Integrator, NewtonSettings};
 use mpm_kernels::{Compact, CubicBSpline, Kernel, Linear, QuadraticBSpline};
 use mpm_math::{determinant, Real, Vector};
-use mpm_transfer::{Apic, Flip, Mls, Particles, Pic, Transfer, TransferScheme};
+use mpm_transfer::{Apic, Flip, Mls, Particles, Pic, Totals, Transfer, TransferScheme};
 use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -85,6 +88,9 @@ pub enum RunError {
     /// A checkpoint could not be used or written.
     #[error("{0}")]
     Checkpoint(String),
+    /// Another rank of a decomposed run stopped this one.
+    #[error("{0}")]
+    Rank(String),
     /// A scene value the simulation cannot use.
     #[error("{origin}: {key}: {message}")]
     Scene {
@@ -106,7 +112,57 @@ fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> RunError + '_ {
 
 /// Runs a validated scene.
 pub fn run_scene(scene: &Scene, opts: &RunOptions) -> Result<RunReport, RunError> {
-    run_from(scene, opts, None)
+    run_from(scene, opts, None, None)
+}
+
+/// Runs a validated scene as one rank of a domain decomposition over `transport`
+/// (every rank calls this with the same scene and options; rank 0 writes the
+/// output, which is the single-process run's, bit for bit). Explicit, Eulerian
+/// scenes only; no checkpoints.
+pub fn run_scene_on(
+    scene: &Scene,
+    opts: &RunOptions,
+    transport: Box<dyn Transport>,
+) -> Result<RunReport, RunError> {
+    if opts.checkpoint_every.is_some() {
+        return Err(RunError::Checkpoint(format!(
+            "{}: --checkpoint-every is not available on several ranks yet; run on one rank to write checkpoints",
+            opts.origin
+        )));
+    }
+    run_from(scene, opts, None, Some(transport))
+}
+
+/// Runs a validated scene split into `ranks` slabs, each rank in its own thread of
+/// this process talking over channels ([`LocalTransport`]): the decomposition that
+/// `mpirun` runs across processes, checkable on one machine. Returns rank 0's report.
+pub fn run_scene_ranks(
+    scene: &Scene,
+    opts: &RunOptions,
+    ranks: usize,
+) -> Result<RunReport, RunError> {
+    if ranks <= 1 {
+        return run_scene(scene, opts);
+    }
+    let results: Vec<Result<RunReport, RunError>> = std::thread::scope(|scope| {
+        let handles: Vec<_> = LocalTransport::group(ranks)
+            .into_iter()
+            .map(|t| scope.spawn(move || run_scene_on(scene, opts, Box::new(t))))
+            .collect();
+        handles
+            .into_iter()
+            .map(|h| {
+                h.join()
+                    .unwrap_or_else(|_| Err(RunError::Rank("a rank thread panicked".to_string())))
+            })
+            .collect()
+    });
+    // Rank 0 reports; a failure elsewhere is reported by rank 0 as well (the ranks
+    // agree on every failure), so its result is the one to return.
+    results
+        .into_iter()
+        .next()
+        .unwrap_or_else(|| Err(RunError::Rank("no rank ran".to_string())))
 }
 
 /// What `mpm resume` reports besides the run.
@@ -149,57 +205,63 @@ pub fn resume_run(opts: &RunOptions) -> Result<Resumed, RunError> {
     o.origin = ck.header.origin.clone();
     o.source = Some(ck.header.source.clone());
     o.checkpoint_every = Some(o.checkpoint_every.unwrap_or(ck.header.every));
-    let report = run_from(&scene, &o, Some(&ck))?;
+    let report = run_from(&scene, &o, Some(&ck), None)?;
     Ok(Resumed::Continued {
         from_frame: ck.header.frame,
         report,
     })
 }
 
+/// Where a run starts from and whom it shares the work with.
+struct Start<'a> {
+    resume: Option<&'a Checkpoint>,
+    transport: Option<Box<dyn Transport>>,
+}
+
 fn run_from(
     scene: &Scene,
     opts: &RunOptions,
     resume: Option<&Checkpoint>,
+    transport: Option<Box<dyn Transport>>,
 ) -> Result<RunReport, RunError> {
     let s = &scene.simulation;
+    let start = Start { resume, transport };
     match (s.dim, s.precision) {
-        (2, Precision::F32) => run_dim::<f32, 2>(scene, opts, resume),
-        (2, Precision::F64) => run_dim::<f64, 2>(scene, opts, resume),
-        (3, Precision::F32) => run_dim::<f32, 3>(scene, opts, resume),
-        _ => run_dim::<f64, 3>(scene, opts, resume),
+        (2, Precision::F32) => run_dim::<f32, 2>(scene, opts, start),
+        (2, Precision::F64) => run_dim::<f64, 2>(scene, opts, start),
+        (3, Precision::F32) => run_dim::<f32, 3>(scene, opts, start),
+        _ => run_dim::<f64, 3>(scene, opts, start),
     }
 }
 
 fn run_dim<T: Real, const D: usize>(
     scene: &Scene,
     opts: &RunOptions,
-    resume: Option<&Checkpoint>,
+    start: Start<'_>,
 ) -> Result<RunReport, RunError> {
     let s = &scene.simulation;
     match (s.kernel, s.grid) {
         (KernelKind::Linear, GridKind::Single) => {
-            run_typed::<T, D, Linear, Single>(scene, opts, resume)
+            run_typed::<T, D, Linear, Single>(scene, opts, start)
         }
-        (KernelKind::Linear, GridKind::Dual) => {
-            run_typed::<T, D, Linear, Dual>(scene, opts, resume)
-        }
+        (KernelKind::Linear, GridKind::Dual) => run_typed::<T, D, Linear, Dual>(scene, opts, start),
         (KernelKind::Quadratic, GridKind::Single) => {
-            run_typed::<T, D, QuadraticBSpline, Single>(scene, opts, resume)
+            run_typed::<T, D, QuadraticBSpline, Single>(scene, opts, start)
         }
         (KernelKind::Quadratic, GridKind::Dual) => {
-            run_typed::<T, D, QuadraticBSpline, Dual>(scene, opts, resume)
+            run_typed::<T, D, QuadraticBSpline, Dual>(scene, opts, start)
         }
         (KernelKind::Cubic, GridKind::Single) => {
-            run_typed::<T, D, CubicBSpline, Single>(scene, opts, resume)
+            run_typed::<T, D, CubicBSpline, Single>(scene, opts, start)
         }
         (KernelKind::Cubic, GridKind::Dual) => {
-            run_typed::<T, D, CubicBSpline, Dual>(scene, opts, resume)
+            run_typed::<T, D, CubicBSpline, Dual>(scene, opts, start)
         }
         (KernelKind::Compact, GridKind::Single) => {
-            run_typed::<T, D, Compact, Single>(scene, opts, resume)
+            run_typed::<T, D, Compact, Single>(scene, opts, start)
         }
         (KernelKind::Compact, GridKind::Dual) => {
-            run_typed::<T, D, Compact, Dual>(scene, opts, resume)
+            run_typed::<T, D, Compact, Dual>(scene, opts, start)
         }
     }
 }
@@ -629,11 +691,22 @@ pub fn particle_fields<T: Real, const D: usize>(
 fn run_typed<T: Real, const D: usize, K: Kernel, L: GridLayout>(
     scene: &Scene,
     opts: &RunOptions,
-    resume: Option<&Checkpoint>,
+    start: Start<'_>,
 ) -> Result<RunReport, RunError> {
     let started = Instant::now();
     let s = &scene.simulation;
+    let resume = start.resume;
     let (mut sim, body_of) = build_simulation::<T, D, K, L>(scene, &opts.origin)?;
+    let ranks = start.transport.as_ref().map_or(1, |t| t.ranks());
+    if let Some(t) = start.transport {
+        sim.distribute(t).map_err(|e| RunError::Scene {
+            origin: opts.origin.clone(),
+            key: e.key.to_string(),
+            message: format!("is \"{}\": {}", e.value, e.reason),
+        })?;
+    }
+    // Rank 0 writes every file; the other ranks take part in the gathers.
+    let writer = sim.rank() == 0;
     let probe_names: Vec<String> = scene.probe.iter().map(|p| p.name.clone()).collect();
     let mut stats = StatsWriter::new(probe_names.clone());
     // (time, file) of every VTU frame so far; the collection is rewritten each frame.
@@ -671,7 +744,9 @@ fn run_typed<T: Real, const D: usize, K: Kernel, L: GridLayout>(
         (None, _) => None,
     };
     let frames_dir = opts.out.join("frames");
-    std::fs::create_dir_all(&frames_dir).map_err(io_err(&frames_dir))?;
+    if writer {
+        std::fs::create_dir_all(&frames_dir).map_err(io_err(&frames_dir))?;
+    }
     let stats_path = opts.out.join("stats.csv");
     let summary_path = opts.out.join("summary.json");
     let gravity = s.gravity.clone();
@@ -680,24 +755,32 @@ fn run_typed<T: Real, const D: usize, K: Kernel, L: GridLayout>(
     let last_frame = opts
         .max_frames
         .map_or(total_frames, |n| (first_frame - 1 + n).min(total_frames));
-    let bar = progress_bar(opts.progress, last_frame as u64);
+    let bar = progress_bar(opts.progress && writer, last_frame as u64);
     let ply = scene.output.format.contains(&OutputFormat::Ply);
     let vtu = scene.output.format.contains(&OutputFormat::Vtu);
     let pvd_path = opts.out.join("frames.pvd");
 
     let mut write_frame = |frame: usize,
-                           sim: &Simulation<T, D, K, L>,
+                           sim: &mut Simulation<T, D, K, L>,
                            stats: &mut StatsWriter|
      -> Result<(), RunError> {
         let t0 = Instant::now();
+        // Decomposed: rank 0 gathers every rank's particles (in the single-process
+        // order) and computes every output from them; the others are done.
+        let gathered = sim.gather_particles();
+        if !writer {
+            return Ok(());
+        }
+        let sim = &*sim;
+        let particles = gathered.as_ref().unwrap_or(&sim.particles);
         if ply {
             let path = frames_dir.join(format!("frame_{frame:05}.ply"));
-            write_atomic(&path, &frame_ply(&sim.particles)).map_err(io_err(&path))?;
+            write_atomic(&path, &frame_ply(particles)).map_err(io_err(&path))?;
         }
         if vtu {
             let name = format!("frame_{frame:05}.vtu");
             let path = frames_dir.join(&name);
-            let fields = particle_fields(&sim.particles, &sim.materials, &body_of);
+            let fields = particle_fields(particles, &sim.materials, &body_of);
             let bytes = vtu_bytes(&fields).map_err(|e| RunError::Io {
                 path: path.display().to_string(),
                 source: std::io::Error::other(e.to_string()),
@@ -707,13 +790,16 @@ fn run_typed<T: Real, const D: usize, K: Kernel, L: GridLayout>(
             pvd.push((sim.time, format!("frames/{name}")));
             write_atomic(&pvd_path, pvd_text(&pvd).as_bytes()).map_err(io_err(&pvd_path))?;
         }
-        let t = sim.totals();
+        let t = match &gathered {
+            Some(all) => sim.totals_of(all),
+            None => sim.totals(),
+        };
         let row = StatsRow {
             frame,
             time: sim.time,
             steps: sim.steps,
             wall_seconds: wall_before + started.elapsed().as_secs_f64(),
-            particles: sim.particles.len(),
+            particles: particles.len(),
             mass: t.mass,
             kinetic_energy: t.kinetic_energy,
             elastic_energy: t.elastic_energy,
@@ -721,11 +807,11 @@ fn run_typed<T: Real, const D: usize, K: Kernel, L: GridLayout>(
             angular_momentum: t.angular_momentum,
             max_speed: t.max_speed,
             reference_updates: sim.reference_updates,
-            potential_energy: potential_energy(&sim.particles, &gravity),
+            potential_energy: potential_energy(particles, &gravity),
             newton_iterations: sim.solver.newton_iterations,
             cg_iterations: sim.solver.cg_iterations,
         };
-        stats.push(&row, &probe_values(scene, &sim.particles, &body_of));
+        stats.push(&row, &probe_values(scene, particles, &body_of));
         stats.write(&stats_path).map_err(io_err(&stats_path))?;
         // Written last: a checkpoint never points past the frames and rows on disk.
         if let Some((every, source)) = checkpoint_every {
@@ -752,8 +838,22 @@ fn run_typed<T: Real, const D: usize, K: Kernel, L: GridLayout>(
         Ok(())
     };
 
+    // A frame that rank 0 failed to write stops every rank (all take part in the
+    // next step's exchanges).
+    let agreed = |sim: &mut Simulation<T, D, K, L>, r: Result<(), RunError>| {
+        let ok = sim.all_ok(r.is_ok());
+        match r {
+            Err(e) => Err(e),
+            Ok(()) if !ok => Err(RunError::Rank(format!(
+                "{}: rank 0 could not write the output and stopped this rank too",
+                opts.origin
+            ))),
+            Ok(()) => Ok(()),
+        }
+    };
     if resume.is_none() {
-        write_frame(0, &sim, &mut stats)?;
+        let r = write_frame(0, &mut sim, &mut stats);
+        agreed(&mut sim, r)?;
     }
     let mut outcome: Result<(), RunError> = Ok(());
     let mut frames_done = first_frame - 1;
@@ -781,7 +881,8 @@ fn run_typed<T: Real, const D: usize, K: Kernel, L: GridLayout>(
             });
             break;
         }
-        write_frame(frame, &sim, &mut stats)?;
+        let r = write_frame(frame, &mut sim, &mut stats);
+        agreed(&mut sim, r)?;
         frames_done = frame;
         if let Some(b) = &bar {
             b.set_position(frame as u64);
@@ -791,23 +892,66 @@ fn run_typed<T: Real, const D: usize, K: Kernel, L: GridLayout>(
         b.finish_and_clear();
     }
     let wall = started.elapsed().as_secs_f64();
-    let summary = summary_json(
-        scene,
-        opts,
-        &sim,
-        wall,
-        output_seconds,
-        frames_done,
-        &outcome,
-    );
-    let text = serde_json::to_string_pretty(&summary).unwrap_or_default();
-    write_atomic(&summary_path, text.as_bytes()).map_err(io_err(&summary_path))?;
-    outcome?;
-    Ok(RunReport {
+    // Collective: every rank's counters and the final particles, for rank 0.
+    let ranks_report = sim.decomposition_report();
+    let gathered = sim.gather_particles();
+    let particles = gathered.as_ref().unwrap_or(&sim.particles);
+    let totals = match &gathered {
+        Some(all) => sim.totals_of(all),
+        None => sim.totals(),
+    };
+    let report = RunReport {
         frames: frames_done + 1,
         steps: sim.steps,
-        particles: sim.particles.len(),
+        particles: particles.len(),
         wall_seconds: wall,
+    };
+    if writer {
+        let mut summary = summary_json(
+            scene,
+            opts,
+            &sim,
+            (particles.len(), &totals),
+            wall,
+            output_seconds,
+            frames_done,
+            &outcome,
+        );
+        if let Some(per_rank) = ranks_report {
+            summary["decomposition"] = decomposition_json(&per_rank, ranks, sim.steps);
+        }
+        let text = serde_json::to_string_pretty(&summary).unwrap_or_default();
+        write_atomic(&summary_path, text.as_bytes()).map_err(io_err(&summary_path))?;
+    }
+    outcome?;
+    Ok(report)
+}
+
+/// summary.json's `decomposition`: per-rank particles and traffic, and the figures a
+/// scaling model needs (bytes and exchange time per step).
+fn decomposition_json(
+    per_rank: &[(usize, mpm_transfer::CommStats)],
+    ranks: usize,
+    steps: u64,
+) -> serde_json::Value {
+    let steps_f = steps.max(1) as f64;
+    let bytes: u64 = per_rank.iter().map(|r| r.1.bytes_sent).sum();
+    let max_seconds = per_rank.iter().map(|r| r.1.seconds).fold(0.0, f64::max);
+    json!({
+        "ranks": ranks,
+        "partition": "slabs of whole 4-node block layers along the last axis, balanced by particle count",
+        "bytes_per_step": bytes as f64 / steps_f,
+        "exchange_seconds_per_step_max_rank": max_seconds / steps_f,
+        "rebalances": per_rank.first().map_or(0, |r| r.1.rebalances),
+        "per_rank": per_rank.iter().enumerate().map(|(rank, (n, c))| json!({
+            "rank": rank,
+            "particles": n,
+            "exchange_seconds": c.seconds,
+            "bytes_sent": c.bytes_sent,
+            "particles_sent": c.migrated,
+            "halo_blocks_sent": c.halo_blocks,
+            "output_bytes_sent": c.output_bytes,
+        })).collect::<Vec<_>>(),
     })
 }
 
@@ -866,6 +1010,9 @@ pub(crate) fn diagnose(
         StepFailure::Particle(StepError::NonFinite { .. } | StepError::TooFast { .. }) => format!(
             "The {what} step went unstable: {step_size}, or stiffen less abruptly (check `youngs_modulus` and the initial velocities).{implicit_hint}"
         ),
+        StepFailure::Particle(StepError::Remote { rank, .. }) => format!(
+            "Rank {rank} holds the failing particle and prints the diagnosis for it."
+        ),
         StepFailure::Particle(StepError::LeftDomain { .. }) => format!(
             "A particle crossed the domain walls: {step_size}, or enlarge `simulation.domain_min`/`domain_max` so the walls are farther from the motion."
         ),
@@ -913,18 +1060,19 @@ fn progress_bar(enabled: bool, frames: u64) -> Option<indicatif::ProgressBar> {
     Some(bar)
 }
 
+#[allow(clippy::too_many_arguments)]
 fn summary_json<T: Real, const D: usize, K: Kernel, L: GridLayout>(
     scene: &Scene,
     opts: &RunOptions,
     sim: &Simulation<T, D, K, L>,
+    (particles, t): (usize, &Totals),
     wall: f64,
     output_seconds: f64,
     frames: usize,
     outcome: &Result<(), RunError>,
 ) -> serde_json::Value {
-    let t = sim.totals();
     let phases = sim.phase_times();
-    let particle_steps = sim.steps as f64 * sim.particles.len() as f64;
+    let particle_steps = sim.steps as f64 * particles as f64;
     let step_seconds = phases.sort + phases.p2g + phases.grid_update + phases.g2p;
     let nodes_per_particle = K::NODES_PER_AXIS.pow(D as u32) * L::GRIDS;
     json!({
@@ -936,7 +1084,7 @@ fn summary_json<T: Real, const D: usize, K: Kernel, L: GridLayout>(
             "mpm": env!("CARGO_PKG_VERSION"),
         },
         "threads": opts.threads,
-        "particles": sim.particles.len(),
+        "particles": particles,
         "bytes_per_particle": sim.bytes_per_particle(),
         "reference": {
             "kind": mpm_aul::ReferenceConfig::name(&sim.reference),

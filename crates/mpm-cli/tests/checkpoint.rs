@@ -337,3 +337,170 @@ fn sigkill_at_random_moments_leaves_readable_outputs_and_resumes_identically() {
         "only {killed_with_frames} kills landed mid-run (run took {duration:?})"
     );
 }
+
+/// Two bodies thrown across the slab cuts (along y, the last axis in 2-D) and at the
+/// floor: Eulerian, f64, both output formats and a probe.
+const EULERIAN_2D: &str = r#"
+[simulation]
+dim = 2
+precision = "f64"
+h = 0.02
+domain_min = [0.0, 0.0]
+domain_max = [1.0, 1.0]
+end_time = 0.16
+frame_dt = 0.02
+kernel = "compact"
+transfer = "apic"
+
+[[material]]
+name = "jelly"
+model = "fixed-corotated"
+density = 1000.0
+youngs_modulus = 1.0e4
+poisson_ratio = 0.3
+
+[[material]]
+name = "water"
+model = "j-fluid"
+density = 1000.0
+bulk_modulus = 2.0e3
+viscosity = 0.1
+
+[[body]]
+material = "jelly"
+shape = { type = "box", min = [0.2, 0.5], max = [0.4, 0.9] }
+particles_per_cell = 4
+velocity = [1.0, -2.0]
+angular_velocity = [4.0]
+
+[[body]]
+material = "water"
+shape = { type = "sphere", center = [0.7, 0.3], radius = 0.12 }
+particles_per_cell = 4
+velocity = [-1.0, 2.5]
+
+[[probe]]
+name = "jelly_bottom"
+body = 0
+quantity = "min_y"
+
+[output]
+format = ["ply", "vtu"]
+"#;
+
+#[test]
+fn ranks_reproduce_the_one_rank_run_bit_for_bit() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = write_scene(dir.path(), EULERIAN_2D);
+    let one = dir.path().join("one");
+    run(&scene, &one, &[]);
+    for ranks in ["2", "3"] {
+        let many = dir.path().join(format!("ranks{ranks}"));
+        run(&scene, &many, &["--ranks", ranks]);
+        assert_same_outputs(&one, &many);
+        let summary: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(many.join("summary.json")).unwrap())
+                .unwrap();
+        let d = &summary["decomposition"];
+        assert_eq!(d["ranks"].as_u64(), Some(ranks.parse().unwrap()));
+        let per_rank = d["per_rank"].as_array().unwrap();
+        let total: u64 = per_rank
+            .iter()
+            .map(|r| r["particles"].as_u64().unwrap())
+            .sum();
+        assert_eq!(Some(total), summary["particles"].as_u64());
+        let sent: u64 = per_rank
+            .iter()
+            .map(|r| r["particles_sent"].as_u64().unwrap())
+            .sum();
+        assert!(sent > 0, "no particle crossed a slab cut: {d}");
+        assert!(d["bytes_per_step"].as_f64().unwrap() > 0.0);
+    }
+}
+
+#[test]
+fn ranks_refuse_what_runs_in_one_process_only() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = write_scene(dir.path(), EULERIAN_2D);
+    let out = dir.path().join("out");
+    let o = out.to_str().unwrap();
+    let s = scene.to_str().unwrap();
+    for (set, key) in [
+        (
+            "simulation.reference=\"total-lagrangian\"",
+            "simulation.reference",
+        ),
+        (
+            "simulation.integrator=\"implicit\"",
+            "simulation.integrator",
+        ),
+    ] {
+        let r = mpm(&["run", s, "--out", o, "--ranks", "2", "--set", set]);
+        let err = String::from_utf8_lossy(&r.stderr);
+        assert!(!r.status.success(), "{set}: accepted on 2 ranks");
+        assert!(err.contains(key) && err.contains("one rank"), "{err}");
+    }
+    let r = mpm(&[
+        "run",
+        s,
+        "--out",
+        o,
+        "--ranks",
+        "2",
+        "--checkpoint-every",
+        "1",
+    ]);
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(
+        !r.status.success() && err.contains("--checkpoint-every"),
+        "{err}"
+    );
+    let r = mpm(&["run", s, "--out", o, "--ranks", "0"]);
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(
+        !r.status.success() && err.contains("--ranks must be at least 1"),
+        "{err}"
+    );
+}
+
+/// `mpirun -n K mpm run` (oversubscribed on a small machine) writes the one-process
+/// run's files, bit for bit.
+#[cfg(feature = "mpi")]
+#[test]
+fn mpirun_ranks_reproduce_the_one_rank_run_bit_for_bit() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = write_scene(dir.path(), EULERIAN_2D);
+    let one = dir.path().join("one");
+    run(&scene, &one, &[]);
+    for ranks in ["2", "3"] {
+        let many = dir.path().join(format!("mpi{ranks}"));
+        let out = Command::new("mpirun")
+            .args([
+                "--oversubscribe",
+                "-n",
+                ranks,
+                env!("CARGO_BIN_EXE_mpm"),
+                "run",
+            ])
+            .arg(&scene)
+            .arg("--out")
+            .arg(&many)
+            .args(["--threads", "1"])
+            // Open MPI refuses to start as root unless told twice (CI runs as root).
+            .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
+            .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
+            .output()
+            .expect("run mpirun (Debian: openmpi-bin)");
+        let text = ok(&out);
+        // Only rank 0 reports.
+        assert_eq!(text.matches("wrote ").count(), 1, "{text}");
+        assert_same_outputs(&one, &many);
+        let summary: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(many.join("summary.json")).unwrap())
+                .unwrap();
+        assert_eq!(
+            summary["decomposition"]["ranks"].as_u64(),
+            Some(ranks.parse().unwrap())
+        );
+    }
+}

@@ -381,9 +381,18 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
     /// that sorts particles by home block (blocks in [`block_order`]); the caller must
     /// reorder its particle arrays with it before scattering. Deterministic.
     pub fn bin(&mut self, home_cell: &[[i32; D]]) -> Vec<u32> {
+        self.bin_with_halo(home_cell, &[])
+    }
+
+    /// [`Self::bin`] plus `halo` home blocks that hold no particle here: another
+    /// rank's particles scatter into them, and [`Self::set_home_buffer`] receives
+    /// their buffers before [`Self::reduce_scatter`] ([`Self::set_home_buffer`]) (domain decomposition, see
+    /// [`crate::partition`]). Blocks of `halo` that also hold particles here are
+    /// ordinary home blocks.
+    pub fn bin_with_halo(&mut self, home_cell: &[[i32; D]], halo: &[[i32; D]]) -> Vec<u32> {
         // Home block of each particle; unique blocks in a fixed order.
         let mut ids: HashMap<[i32; D], u32> = HashMap::default();
-        ids.reserve(self.home_blocks.len() + 16);
+        ids.reserve(self.home_blocks.len() + halo.len() + 16);
         let mut found: Vec<[i32; D]> = Vec::new();
         self.keys.clear();
         self.keys.reserve(home_cell.len());
@@ -404,6 +413,12 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
                 }
             };
             self.keys.push(id);
+        }
+        for b in halo {
+            ids.entry(*b).or_insert_with(|| {
+                found.push(*b);
+                (found.len() - 1) as u32
+            });
         }
         let mut sorted: Vec<u32> = (0..found.len() as u32).collect();
         sorted.sort_unstable_by(|&a, &b| block_order(&found[a as usize], &found[b as usize]));
@@ -512,6 +527,17 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
     where
         F: Fn(usize, std::ops::Range<usize>, &mut LocalBuffer<'_, T, D>) + Sync,
     {
+        self.scatter_local(ext, separate_impulse, positions, f);
+        self.reduce_scatter();
+    }
+
+    /// The first half of [`Self::scatter`]: fills the home blocks' buffers and stops
+    /// before summing them into the grid, so that halo buffers from other ranks can be
+    /// put in place ([`Self::set_home_buffer`]); [`Self::reduce_scatter`] finishes.
+    pub fn scatter_local<F>(&mut self, ext: usize, separate_impulse: bool, positions: bool, f: F)
+    where
+        F: Fn(usize, std::ops::Range<usize>, &mut LocalBuffer<'_, T, D>) + Sync,
+    {
         assert!(ext <= 2 * BLOCK as usize, "stencil wider than two blocks");
         let per_grid = ext.pow(D as u32);
         let per_home = per_grid * self.grids;
@@ -557,12 +583,104 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
                 let (s, e) = home_ranges[h];
                 f(h, s..e, &mut buf);
             });
-        self.reduce();
     }
 
-    /// Pull reduction: every grid block sums the overlapping parts of the buffers of
-    /// home blocks `G − δ` in the order of `δ`'s bit code.
-    fn reduce(&mut self) {
+    /// Home blocks (block coordinates) in storage order, halo blocks included.
+    pub fn home_blocks(&self) -> &[[i32; D]] {
+        &self.home_blocks
+    }
+
+    /// Index of home block `block`, if it is one.
+    pub fn home_index(&self, block: &[i32; D]) -> Option<usize> {
+        self.home_blocks
+            .binary_search_by(|b| block_order(b, block))
+            .ok()
+    }
+
+    /// Nodes per axis of the scatter buffers (after [`Self::scatter_local`]).
+    pub fn home_buffer_extent(&self) -> usize {
+        self.scratch_ext
+    }
+
+    /// Flat buffer indices (all grids) of the nodes of a home buffer whose local
+    /// index along the last axis lies in `planes`.
+    fn plane_indices(&self, planes: std::ops::Range<usize>) -> impl Iterator<Item = usize> {
+        let ext = self.scratch_ext;
+        let slab = ext.pow(D as u32 - 1);
+        let per_grid = slab * ext;
+        let planes = planes.start.min(ext)..planes.end.min(ext);
+        (0..self.grids).flat_map(move |g| {
+            let planes = planes.clone();
+            planes.flat_map(move |z| (0..slab).map(move |i| g * per_grid + z * slab + i))
+        })
+    }
+
+    /// Numbers [`Self::home_buffer`] writes for `planes` planes along the last axis.
+    pub fn home_buffer_len(&self, planes: usize) -> usize {
+        let nodes = self.scratch_ext.pow(D as u32 - 1) * planes.min(self.scratch_ext) * self.grids;
+        let vectors = 1
+            + usize::from(!self.scratch_impulse.is_empty())
+            + usize::from(!self.scratch_position.is_empty());
+        nodes * (1 + vectors * D)
+    }
+
+    /// Appends the part of home block `h`'s scatter buffer whose local index along the
+    /// last axis lies in `planes` (mass, then each vector channel the scatter keeps),
+    /// exactly (`f32` and `f64` values are `f64` values). A rank needs only the planes
+    /// that reach into its own grid blocks.
+    pub fn home_buffer(&self, h: usize, planes: std::ops::Range<usize>, out: &mut Vec<f64>) {
+        let base = h * self.scratch_ext.pow(D as u32) * self.grids;
+        out.extend(
+            self.plane_indices(planes.clone())
+                .map(|i| self.scratch_mass[base + i].to_f64()),
+        );
+        for v in [
+            &self.scratch_momentum,
+            &self.scratch_impulse,
+            &self.scratch_position,
+        ] {
+            if !v.is_empty() {
+                for i in self.plane_indices(planes.clone()) {
+                    out.extend(v[base + i].iter().map(|c| c.to_f64()));
+                }
+            }
+        }
+    }
+
+    /// Writes `data`, as [`Self::home_buffer`] wrote it for the same `planes` on the
+    /// rank whose particles fill home block `h`, into `h`'s buffer.
+    pub fn set_home_buffer(&mut self, h: usize, planes: std::ops::Range<usize>, data: &[f64]) {
+        let count = planes.end.min(self.scratch_ext) - planes.start.min(self.scratch_ext);
+        assert_eq!(
+            data.len(),
+            self.home_buffer_len(count),
+            "halo buffer of the wrong size"
+        );
+        let base = h * self.scratch_ext.pow(D as u32) * self.grids;
+        let idx: Vec<usize> = self.plane_indices(planes).map(|i| base + i).collect();
+        let (mass, mut rest) = data.split_at(idx.len());
+        for (&i, x) in idx.iter().zip(mass) {
+            self.scratch_mass[i] = T::lit(*x);
+        }
+        for v in [
+            &mut self.scratch_momentum,
+            &mut self.scratch_impulse,
+            &mut self.scratch_position,
+        ] {
+            if !v.is_empty() {
+                let (part, tail) = rest.split_at(idx.len() * D);
+                for (&i, c) in idx.iter().zip(part.chunks_exact(D)) {
+                    v[i] = Vector::<T, D>::from_fn(|a, _| T::lit(c[a]));
+                }
+                rest = tail;
+            }
+        }
+    }
+
+    /// The second half of [`Self::scatter`]: a pull reduction where every grid block
+    /// sums the overlapping parts of the buffers of home blocks `G − δ` in the order of
+    /// `δ`'s bit code.
+    pub fn reduce_scatter(&mut self) {
         let npb = self.nodes_per_block;
         let total = self.node_count();
         let zero = Vector::<T, D>::zeros();

@@ -6,9 +6,11 @@
 pub mod block_sparse_grid;
 pub mod boundary;
 pub mod layout;
+pub mod partition;
 
 pub use block_sparse_grid::{
     optional_chunks, BlockSparseGrid, GatherView, LocalBuffer, NodeIndexer, BLOCK,
 };
 pub use boundary::{domain_walls, Collider, ColliderShape, ContactKind};
 pub use layout::{Dual, GridLayout, Single};
+pub use partition::{all_gather, all_max, all_sum, LocalTransport, SlabPartition, Transport};

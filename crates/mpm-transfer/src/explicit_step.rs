@@ -53,7 +53,7 @@ pub struct ExplicitStepper<T: Real, const D: usize, K: Kernel, L: GridLayout> {
     pub grid: BlockSparseGrid<T, D>,
     /// Accumulated phase times.
     pub times: PhaseTimes,
-    cells: Vec<[i32; D]>,
+    pub(crate) cells: Vec<[i32; D]>,
     _stencil: PhantomData<(K, L)>,
 }
 
@@ -154,6 +154,13 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
 
     /// Sorts particles by the grid block of their first stencil node on grid 0.
     pub fn bin(&mut self, particles: &mut Particles<T, D>, h: T) {
+        self.home_cells(particles, h);
+        let order = self.grid.bin(&self.cells);
+        particles.reorder(&order);
+    }
+
+    /// Fills `self.cells` with each particle's first stencil node on grid 0.
+    pub(crate) fn home_cells(&mut self, particles: &Particles<T, D>, h: T) {
         let inv_h = T::one() / h;
         let off = T::lit(L::offset(0));
         self.cells.clear();
@@ -168,8 +175,6 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
                 c
             })
             .collect_into_vec(&mut self.cells);
-        let order = self.grid.bin(&self.cells);
-        particles.reorder(&order);
     }
 
     /// P2G: `m_i = Σ w m_p`, `m_i v_i = Σ w m_p (v_p + C_p r)` and the stress impulse
@@ -198,6 +203,21 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
         h: T,
         elastic_forces: bool,
     ) {
+        self.scatter_to_home_buffers(particles, materials, scheme, dt, h, elastic_forces);
+        self.grid.reduce_scatter();
+    }
+
+    /// The particle half of P2G: every home block's buffer, not yet summed into the
+    /// grid ([`BlockSparseGrid::scatter_local`]).
+    pub(crate) fn scatter_to_home_buffers<S: TransferScheme<T, D>>(
+        &mut self,
+        particles: &Particles<T, D>,
+        materials: &[Material<T>],
+        scheme: &S,
+        dt: T,
+        h: T,
+        elastic_forces: bool,
+    ) {
         let inv_h = T::one() / h;
         let gradient_form = Self::gradient_form();
         let affine = scheme.stores_affine();
@@ -209,7 +229,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
         let separate = scheme.needs(gradient_form).old_velocity;
         let nodes = K::NODES_PER_AXIS.pow(D as u32);
         let p = particles;
-        self.grid.scatter(
+        self.grid.scatter_local(
             Self::buffer_extent(),
             separate,
             false,

@@ -9,6 +9,7 @@
 
 mod apic;
 pub mod diagnostics;
+pub mod distributed;
 pub mod explicit_step;
 mod flip;
 mod mls;
@@ -21,6 +22,7 @@ pub mod timestep;
 
 pub use apic::Apic;
 pub use diagnostics::{connected_components, particle_totals, Totals};
+pub use distributed::{CommStats, Decomposition};
 pub use explicit_step::{particle_chunks, ExplicitStepper, PhaseTimes, StepParams, PARTICLE_CHUNK};
 pub use flip::Flip;
 pub use mls::Mls;
@@ -88,6 +90,17 @@ pub enum StepError {
         min: f64,
         /// See `min`.
         max: f64,
+    },
+    /// A particle on another rank of a decomposed run failed (that rank reports the
+    /// error itself; this is its message).
+    #[error("{message} (on rank {rank})")]
+    Remote {
+        /// Particle id.
+        particle: u32,
+        /// The rank that holds it.
+        rank: usize,
+        /// That rank's error message.
+        message: String,
     },
 }
 
@@ -170,7 +183,8 @@ impl StepError {
             | StepError::Inverted { particle, .. }
             | StepError::Collapsed { particle, .. }
             | StepError::TooFast { particle, .. }
-            | StepError::LeftDomain { particle, .. } => *particle,
+            | StepError::LeftDomain { particle, .. }
+            | StepError::Remote { particle, .. } => *particle,
         }
     }
 }

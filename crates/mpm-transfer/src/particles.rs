@@ -170,6 +170,128 @@ impl<T: Real, const D: usize> Particles<T, D> {
         permute(&mut self.affine, order);
     }
 
+    /// Numbers per particle in [`Self::pack`]'s record: id, position, velocity, mass,
+    /// volume, material and the state arrays this set keeps.
+    pub fn record_len(&self) -> usize {
+        let m = D * D;
+        let mut n = 4 + 2 * D;
+        n += m * usize::from(self.needs.deformation);
+        n += usize::from(self.needs.plastic);
+        n += usize::from(self.needs.jacobian);
+        n += m * usize::from(self.needs.velocity_gradient);
+        n += m * usize::from(self.stores_affine);
+        n
+    }
+
+    /// Appends particle `i`'s whole state to `out` as [`Self::record_len`] numbers
+    /// (exact: `f32`, `f64`, `u32` and `u16` values are all `f64` values), for moving
+    /// it to another rank.
+    pub fn pack(&self, i: usize, out: &mut Vec<f64>) {
+        out.push(self.id[i] as f64);
+        out.extend(self.x[i].iter().map(|c| c.to_f64()));
+        out.extend(self.v[i].iter().map(|c| c.to_f64()));
+        out.push(self.mass[i].to_f64());
+        out.push(self.volume[i].to_f64());
+        out.push(self.material[i] as f64);
+        let matrix =
+            |m: &Matrix<T, D>, out: &mut Vec<f64>| out.extend(m.iter().map(|c| c.to_f64()));
+        if let Some(f) = self.deformation.get(i) {
+            matrix(f, out);
+        }
+        if let Some(q) = self.plastic.get(i) {
+            out.push(q.to_f64());
+        }
+        if let Some(j) = self.jacobian.get(i) {
+            out.push(j.to_f64());
+        }
+        if let Some(l) = self.velocity_gradient.get(i) {
+            matrix(l, out);
+        }
+        if let Some(b) = self.affine.get(i) {
+            matrix(b, out);
+        }
+    }
+
+    /// Appends a particle from a record written by [`Self::pack`] on a set with the
+    /// same arrays.
+    pub fn push_record(&mut self, r: &[f64]) {
+        debug_assert_eq!(r.len(), self.record_len());
+        let mut k = 0usize;
+        let mut take = |n: usize| {
+            let s = &r[k..k + n];
+            k += n;
+            s
+        };
+        let vector = |s: &[f64]| Vector::<T, D>::from_fn(|a, _| T::lit(s[a]));
+        let matrix = |s: &[f64]| Matrix::<T, D>::from_iterator(s.iter().map(|&c| T::lit(c)));
+        self.id.push(take(1)[0] as u32);
+        self.x.push(vector(take(D)));
+        self.v.push(vector(take(D)));
+        self.mass.push(T::lit(take(1)[0]));
+        self.volume.push(T::lit(take(1)[0]));
+        self.material.push(take(1)[0] as u16);
+        if self.needs.deformation {
+            self.deformation.push(matrix(take(D * D)));
+        }
+        if self.needs.plastic {
+            self.plastic.push(T::lit(take(1)[0]));
+        }
+        if self.needs.jacobian {
+            self.jacobian.push(T::lit(take(1)[0]));
+        }
+        if self.needs.velocity_gradient {
+            self.velocity_gradient.push(matrix(take(D * D)));
+        }
+        if self.stores_affine {
+            self.affine.push(matrix(take(D * D)));
+        }
+    }
+
+    /// The particles at `indices`, in that order (a set with the same arrays).
+    pub fn gather(&self, indices: &[u32]) -> Self {
+        fn pick<X: Copy>(v: &[X], indices: &[u32]) -> Vec<X> {
+            if v.is_empty() {
+                return Vec::new();
+            }
+            indices.iter().map(|&i| v[i as usize]).collect()
+        }
+        Particles {
+            id: pick(&self.id, indices),
+            x: pick(&self.x, indices),
+            v: pick(&self.v, indices),
+            mass: pick(&self.mass, indices),
+            volume: pick(&self.volume, indices),
+            material: pick(&self.material, indices),
+            deformation: pick(&self.deformation, indices),
+            plastic: pick(&self.plastic, indices),
+            jacobian: pick(&self.jacobian, indices),
+            velocity_gradient: pick(&self.velocity_gradient, indices),
+            affine: pick(&self.affine, indices),
+            stores_affine: self.stores_affine,
+            needs: self.needs,
+        }
+    }
+
+    /// Appends every particle of `other` (a set with the same arrays), in order.
+    pub fn append(&mut self, mut other: Self) {
+        self.id.append(&mut other.id);
+        self.x.append(&mut other.x);
+        self.v.append(&mut other.v);
+        self.mass.append(&mut other.mass);
+        self.volume.append(&mut other.volume);
+        self.material.append(&mut other.material);
+        self.deformation.append(&mut other.deformation);
+        self.plastic.append(&mut other.plastic);
+        self.jacobian.append(&mut other.jacobian);
+        self.velocity_gradient.append(&mut other.velocity_gradient);
+        self.affine.append(&mut other.affine);
+    }
+
+    /// An empty set with the same arrays as this one.
+    pub fn empty_like(&self) -> Self {
+        Particles::new(self.stores_affine, self.needs)
+    }
+
     /// Position of each particle in the arrays, indexed by `id`.
     pub fn index_by_id(&self) -> Vec<u32> {
         let mut idx = vec![0u32; self.len()];
