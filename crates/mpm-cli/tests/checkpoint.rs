@@ -248,6 +248,11 @@ fn resume_errors_name_the_file_and_the_fix() {
 /// particle), stats rows for frames 0..=n−1 or 0..=n−2 (a row follows its frame), and
 /// a checkpoint, if any, no later than the last row.
 fn check_killed_outputs(dir: &Path, particles: usize) -> usize {
+    if !dir.join("frames").exists() {
+        // Killed before the run wrote anything: nothing to be incomplete.
+        assert!(!dir.join("stats.csv").exists() && !dir.join("checkpoint.bin").exists());
+        return 0;
+    }
     let frames: Vec<String> = frame_files(dir)
         .into_iter()
         .filter(|n| n.ends_with(".ply"))
@@ -503,4 +508,31 @@ fn mpirun_ranks_reproduce_the_one_rank_run_bit_for_bit() {
             Some(ranks.parse().unwrap())
         );
     }
+}
+
+/// An MPI launcher starting several copies of a build without the `mpi` feature gets
+/// a clear error instead of K runs writing the same files.
+#[cfg(not(feature = "mpi"))]
+#[test]
+fn a_build_without_mpi_refuses_to_run_as_several_ranks() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = write_scene(dir.path(), EULERIAN_2D);
+    let out = dir.path().join("out");
+    let r = Command::new(env!("CARGO_BIN_EXE_mpm"))
+        .args([
+            "run",
+            scene.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ])
+        .env("OMPI_COMM_WORLD_SIZE", "4")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(!r.status.success());
+    assert!(
+        err.contains("built without MPI") && err.contains("--features mpm-cli/mpi"),
+        "{err}"
+    );
+    assert!(!out.exists(), "wrote output");
 }
