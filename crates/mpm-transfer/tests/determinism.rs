@@ -3,7 +3,7 @@
 
 use mpm_constitutive::{ElasticModel, FixedCorotated, Material, NeoHookean, StateNeeds};
 use mpm_grid::{domain_walls, ContactKind, Dual, GridLayout, Single};
-use mpm_kernels::{Compact, Kernel, QuadraticBSpline};
+use mpm_kernels::{Compact, CubicBSpline, Kernel, Linear, QuadraticBSpline};
 use mpm_math::Vector;
 use mpm_transfer::{
     Apic, ExplicitStepper, Flip, Mls, Particles, StepParams, Transfer, TransferScheme,
@@ -253,5 +253,18 @@ fn two_and_three_ranks_reproduce_one_process_bit_for_bit() {
     assert!(
         one.0 == many.0,
         "quadratic MLS: 3 ranks differ from one process"
+    );
+    // The widest stencil (4 nodes per axis: 3 halo planes) and the narrowest.
+    let one = run_ranks::<CubicBSpline, Single>(Transfer::Apic(Apic), 0, 1.1);
+    let many = run_ranks::<CubicBSpline, Single>(Transfer::Apic(Apic), 2, 1.1);
+    assert!(
+        one.0 == many.0,
+        "cubic APIC: 2 ranks differ from one process"
+    );
+    let one = run_ranks::<Linear, Single>(Transfer::Apic(Apic), 0, 1.1);
+    let many = run_ranks::<Linear, Single>(Transfer::Apic(Apic), 2, 1.1);
+    assert!(
+        one.0 == many.0,
+        "linear APIC: 2 ranks differ from one process"
     );
 }
