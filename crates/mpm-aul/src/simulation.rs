@@ -321,10 +321,14 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Simulation<T, D, K, L> {
         }
     }
 
-    /// Totals of `particles` (e.g. gathered from every rank) with this simulation's
-    /// materials; Eulerian (no reference-state correction).
-    pub fn totals_of(&self, particles: &Particles<T, D>) -> Totals {
-        particle_totals::<T, D, K, L>(particles, &self.materials, self.params.h)
+    /// [`Self::totals`], or, given the particles [`Self::gather_particles`] returned
+    /// on rank 0 of a decomposed run (Eulerian: no reference-state correction), their
+    /// totals.
+    pub fn totals_with(&self, gathered: Option<&Particles<T, D>>) -> Totals {
+        match gathered {
+            Some(all) => particle_totals::<T, D, K, L>(all, &self.materials, self.params.h),
+            None => self.totals(),
+        }
     }
 
     /// Largest elastic wave speed over the materials.
@@ -414,11 +418,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Simulation<T, D, K, L> {
         if let Some(dec) = &mut self.decomposition {
             // The smallest rank's step: the CFL step of the fastest particle anywhere,
             // exactly the single-process value (the rule decreases with speed).
-            dt = -dec
-                .all_gather(&[-dt])
-                .iter()
-                .map(|v| v[0])
-                .fold(f64::NEG_INFINITY, f64::max);
+            dt = dec.all_min(dt);
         }
         let mut retries = 0;
         loop {

@@ -790,10 +790,7 @@ fn run_typed<T: Real, const D: usize, K: Kernel, L: GridLayout>(
             pvd.push((sim.time, format!("frames/{name}")));
             write_atomic(&pvd_path, pvd_text(&pvd).as_bytes()).map_err(io_err(&pvd_path))?;
         }
-        let t = match &gathered {
-            Some(all) => sim.totals_of(all),
-            None => sim.totals(),
-        };
+        let t = sim.totals_with(gathered.as_ref());
         let row = StatsRow {
             frame,
             time: sim.time,
@@ -896,10 +893,7 @@ fn run_typed<T: Real, const D: usize, K: Kernel, L: GridLayout>(
     let ranks_report = sim.decomposition_report();
     let gathered = sim.gather_particles();
     let particles = gathered.as_ref().unwrap_or(&sim.particles);
-    let totals = match &gathered {
-        Some(all) => sim.totals_of(all),
-        None => sim.totals(),
-    };
+    let totals = sim.totals_with(gathered.as_ref());
     let report = RunReport {
         frames: frames_done + 1,
         steps: sim.steps,

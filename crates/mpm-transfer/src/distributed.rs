@@ -166,12 +166,16 @@ impl Decomposition {
 
     /// Every rank's `value`, in rank order (timed and counted).
     pub fn all_gather(&mut self, value: &[f64]) -> Vec<Vec<f64>> {
-        let t0 = Instant::now();
-        let before = self.transport.bytes_sent();
-        let got = all_gather(self.transport.as_mut(), value);
-        self.stats.bytes_sent += self.transport.bytes_sent() - before;
-        self.stats.seconds += t0.elapsed().as_secs_f64();
-        got
+        self.exchange(vec![value.to_vec(); self.ranks()])
+    }
+
+    /// The smallest `value` over the ranks (exact: a minimum does not depend on the
+    /// order).
+    pub fn all_min(&mut self, value: f64) -> f64 {
+        self.all_gather(&[value])
+            .iter()
+            .map(|v| v[0])
+            .fold(f64::INFINITY, f64::min)
     }
 }
 
@@ -229,11 +233,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
         let t3 = Instant::now();
         let local = self.grid_to_particle(particles, materials, scheme, params);
         let result = agree(local, dec);
-        let t4 = Instant::now();
-        self.times.sort += (t1 - t0).as_secs_f64();
-        self.times.p2g += (t2 - t1).as_secs_f64();
-        self.times.grid_update += (t3 - t2).as_secs_f64();
-        self.times.g2p += (t4 - t3).as_secs_f64();
+        self.times.add_step([t0, t1, t2, t3, Instant::now()]);
         result
     }
 

@@ -47,6 +47,17 @@ pub struct PhaseTimes {
     pub g2p: f64,
 }
 
+impl PhaseTimes {
+    /// Adds one step timed at the starts of sort, P2G, grid update and G2P and at
+    /// its end.
+    pub fn add_step(&mut self, [t0, t1, t2, t3, t4]: [Instant; 5]) {
+        self.sort += (t1 - t0).as_secs_f64();
+        self.p2g += (t2 - t1).as_secs_f64();
+        self.grid_update += (t3 - t2).as_secs_f64();
+        self.g2p += (t4 - t3).as_secs_f64();
+    }
+}
+
 /// The explicit stepper: owns the grid and its work buffers, reused across steps.
 pub struct ExplicitStepper<T: Real, const D: usize, K: Kernel, L: GridLayout> {
     /// The block-sparse grid(s).
@@ -144,11 +155,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
         self.grid_update(params);
         let t3 = Instant::now();
         let result = self.grid_to_particle(particles, materials, scheme, params);
-        let t4 = Instant::now();
-        self.times.sort += (t1 - t0).as_secs_f64();
-        self.times.p2g += (t2 - t1).as_secs_f64();
-        self.times.grid_update += (t3 - t2).as_secs_f64();
-        self.times.g2p += (t4 - t3).as_secs_f64();
+        self.times.add_step([t0, t1, t2, t3, Instant::now()]);
         result
     }
 
