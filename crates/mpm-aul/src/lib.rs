@@ -16,4 +16,6 @@ pub use simulation::{
     DistributeError, Simulation, SimulationError, SimulationSnapshot, SolverTotals, StepFailure,
     TimeStepPolicy,
 };
-pub use updated_lagrangian::{LagrangianSnapshot, ReferenceState, UpdatedLagrangianStepper};
+pub use updated_lagrangian::{
+    AffineOffsets, LagrangianSnapshot, ReferenceState, UpdatedLagrangianStepper,
+};

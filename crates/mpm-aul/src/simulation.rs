@@ -2,7 +2,7 @@
 //! configuration and the stepper, advanced to requested times.
 
 use crate::reference::Reference;
-use crate::updated_lagrangian::{LagrangianSnapshot, UpdatedLagrangianStepper};
+use crate::updated_lagrangian::{AffineOffsets, LagrangianSnapshot, UpdatedLagrangianStepper};
 use mpm_constitutive::Material;
 use mpm_grid::BlockSparseGrid;
 use mpm_grid::Transport;
@@ -175,6 +175,8 @@ pub struct Simulation<T: Real, const D: usize, K: Kernel, L: GridLayout> {
     pub reference_updates: u64,
     /// The stepper (grid and work buffers) the reference needs.
     pub stepper: Stepper<T, D, K, L>,
+    /// Offsets of the Lagrangian steppers' affine term ([`Self::set_affine_offsets`]).
+    pub affine_offsets: AffineOffsets,
     /// Time integrator.
     pub integrator: Integrator,
     /// Newton and CG tolerances and caps (implicit integrators).
@@ -243,6 +245,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Simulation<T, D, K, L> {
             reference: Reference::Eulerian(crate::Eulerian),
             reference_updates: 0,
             stepper: Stepper::Eulerian(Box::new(ExplicitStepper::new())),
+            affine_offsets: AffineOffsets::Reference,
             integrator: Integrator::Explicit,
             newton: NewtonSettings::default(),
             solver: SolverTotals::default(),
@@ -538,17 +541,18 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Simulation<T, D, K, L> {
 
     /// Particle totals (mass, momentum, angular momentum with the APIC term, energies).
     ///
-    /// With a Lagrangian reference the stored affine matrix `B_p = Σ W v_i r_ipᵀ` uses
-    /// the reference offsets; the moment the next P2G transfers about the moving nodes
-    /// is `ε:(B_p Fˢⁿᵀ)ᵀ` (`updated_lagrangian`, *Node positions*), so that is the one
-    /// reported. Taking it of `B_p` itself reported a drift of 4.6e-3 on the spinning
-    /// plate (TL, 0.5 s) that is 7e-5 with `B_p Fˢⁿᵀ`.
+    /// With a Lagrangian reference the APIC term is the moment the next P2G transfers
+    /// about the moving nodes (`updated_lagrangian`, *Angular momentum*): `ε:B̃ᵀ` of the
+    /// stored `B̃ = Σ W v (q − x)ᵀ` with [`AffineOffsets::Nodes`], the same expression as
+    /// in the Eulerian step; `ε:(B Fˢⁿᵀ)ᵀ` of the paper's `B = Σ W v rᵀ` with
+    /// [`AffineOffsets::Reference`] (taking it of `B` itself reported a drift of
+    /// 4.6e-3 on the spinning plate, TL, 0.5 s, that is 7e-5 with `B Fˢⁿᵀ`).
     pub fn totals(&self) -> Totals {
         let mut t = particle_totals::<T, D, K, L>(&self.particles, &self.materials, self.params.h);
         if let (Stepper::Lagrangian(st), true) = (&self.stepper, self.particles.stores_affine) {
             let p = &self.particles;
             let fsn = &st.state.relative_deformation;
-            if fsn.len() == p.len() {
+            if st.affine_offsets() == AffineOffsets::Reference && fsn.len() == p.len() {
                 for i in 0..p.len() {
                     let old = mpm_math::affine_moment(&p.affine[i]);
                     let new = mpm_math::affine_moment(&(p.affine[i] * fsn[i].transpose()));
@@ -559,6 +563,15 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Simulation<T, D, K, L> {
             }
         }
         t
+    }
+
+    /// The offsets of the Lagrangian steppers' affine term (MLS; default
+    /// [`AffineOffsets::Reference`]); kept across [`Self::set_reference`].
+    pub fn set_affine_offsets(&mut self, offsets: AffineOffsets) {
+        self.affine_offsets = offsets;
+        if let Stepper::Lagrangian(st) = &mut self.stepper {
+            st.set_affine_offsets(offsets);
+        }
     }
 
     /// Accumulated time per phase.
@@ -577,6 +590,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Simulation<T, D, K, L> {
             Reference::Eulerian(_) => Stepper::Eulerian(Box::new(ExplicitStepper::new())),
             _ => {
                 let mut st = UpdatedLagrangianStepper::new();
+                st.set_affine_offsets(self.affine_offsets);
                 // PIC/FLIP transfers select the kernel-MPM variant (Appendix B).
                 match self.transfer {
                     Transfer::Pic(_) => st.set_kernel_mpm(T::zero()),

@@ -51,15 +51,37 @@
 //! makes the forces torque-free about the moving nodes: `Σ_i q_i × f_i =
 //! −V ε : (τ Fˢⁿ⁻ᵀ K Σ W r (q − x)ᵀ)ᵀ = −V ε : τ = 0`.
 //!
-//! **Angular momentum** is not conserved to round-off. The P2G transfers the moment
-//! `ε:(B Fˢⁿᵀ)ᵀ` per particle (from the identity above), while G2P receives
-//! `Σ W (q_i − x_p) × v_i`, which also contains the nodes' non-affine offsets
-//! `q_i − x_p − Fˢⁿ r`. Storing `B = Σ W v (q − x)ᵀ Fˢⁿ⁺¹⁻ᵀ`, which closes that gap,
-//! conserves angular momentum to 1e-13 in free flight (measured), but the non-affine
-//! offsets then feed back into the node velocities: after rebuilds on an irregular
-//! particle cloud (the spun plate of `plate_fracture_2d.toml`, ε ≤ 1) elements
-//! invert within 0.1–0.5 s. We keep the paper's `B` (stable; ~1e-4 drift over a
-//! 200-step spin, measured in `tests/updated_lagrangian.rs`).
+//! **Angular momentum** ([`AffineOffsets`]). The grid carries `Σ_i m_i q_i × v_i`
+//! through the step: the forces are torque-free about `q_i` (above) and moving the
+//! nodes by `Δt v_i` adds `v × v = 0`. What the transfers lose is decided by the
+//! offsets of the affine term:
+//! - [`AffineOffsets::Reference`] (default, the paper's eq. 28): G2P keeps
+//!   `B = Σ W v rᵀ`, P2G deposits `B K r`, whose moment is `ε:(B Fˢⁿᵀ)ᵀ` (from the
+//!   identity above), while G2P received `Σ W (q_i − x_p) × v_i`, which also holds the
+//!   nodes' non-affine offsets `q_i − x_p − Fˢⁿ r`: ~1e-4 of the spin is lost over a
+//!   200-step free spin (measured in `tests/updated_lagrangian.rs`).
+//! - [`AffineOffsets::Nodes`]: APIC about the moved nodes. G2P keeps the moment about
+//!   the nodes as they stand, `B̃ = γ Σ W v (q − x)ᵀ`; P2G deposits `C̃ (q − x)` with
+//!   `C̃ = B̃ D̃⁻¹`, `D̃ = γ Σ W (q − x)(q − x)ᵀ` at the nodes' current positions, whose
+//!   moment is `ε:(C̃ D̃)ᵀ = ε:B̃ᵀ` whatever `D̃` is, and whose momentum is `C̃ γ Σ W
+//!   (q − x) = 0`. The particles' `x × v` part is unchanged by the move
+//!   (`Δt v_p × v_p = 0`), so the step conserves angular momentum to round-off,
+//!   rebuilds included (right after one `q − x = r`, `D̃ = K⁻¹`: then `B̃` carried
+//!   across is deposited as `B̃ K r`, the Eulerian MLS term). Measured: 5e-13 to
+//!   2.3e-12 over a 200-step free spin, TL and adaptive, quadratic and compact-dual.
+//!   The price: the deposited field now follows the nodes' non-affine offsets, which
+//!   the force and `G` (on `r`) do not see. Measured on the shipped scenes: the
+//!   spinning plate, twisting column, yo-yo and water-in-bowl run as with the
+//!   reference offsets; the splashing droplet (J-fluid, ε = 0.01) blows up at 0.64 s
+//!   whatever the time step (cfl 0.2 and 0.1), and the plate of
+//!   `plate_fracture_2d.toml`, spun past its wave speed, inverts at 0.50 s with ε = 1
+//!   (0.83 s with ε = 0.5, where the reference offsets invert at 0.54 s).
+//!
+//! Two other exact variants were tried and dropped: storing `B = Σ W v (q − x)ᵀ
+//! Fˢⁿ⁺¹⁻ᵀ` (amplifies the non-affine offsets by `Fˢⁿ⁻ᵀ`; the spun plate inverted
+//! within 0.1–0.5 s) and keeping the reference-offset `B` plus the smallest
+//! antisymmetric correction that deposits the received moment (inverts the spun plate
+//! at 0.28 s with ε = 1).
 //!
 //! **Rebuilds** keep each particle's `B_p` as it is, as APIC/MLS keep it from step to
 //! step. `B ≈ ∇v Fˢⁿ K⁻¹` is relative to the replaced reference, so after a rebuild
@@ -112,6 +134,22 @@ pub struct ReferenceState<T: Real, const D: usize> {
     pub weights: Vec<T>,
     /// Stored weight gradients `∇_X W_ip` (kernel-MPM variant only, else empty).
     pub gradients: Vec<Vector<T, D>>,
+}
+
+/// The offsets the affine velocity term of the MLS step is taken on (crate docs,
+/// *Angular momentum*).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum AffineOffsets {
+    /// The paper's eq. 28: `B = Σ W v rᵀ` on the reference offsets, deposited as
+    /// `B K r`. Robust under extreme distortion; angular momentum drifts (~1e-4 over a
+    /// 200-step free spin).
+    #[default]
+    Reference,
+    /// APIC about the moved nodes: `B̃ = Σ W v (q − x)ᵀ`, deposited as `B̃ D̃⁻¹ (q − x)`
+    /// with `D̃ = Σ W (q − x)(q − x)ᵀ`. Conserves angular momentum to round-off; less
+    /// robust where the node clouds distort far (a splashing J-fluid, a plate spun
+    /// past its wave speed).
+    Nodes,
 }
 
 /// The part of an [`UpdatedLagrangianStepper`] a checkpoint stores.
@@ -171,6 +209,7 @@ pub struct UpdatedLagrangianStepper<T: Real, const D: usize, K: Kernel, L: GridL
     node_positions: Vec<Vector<T, D>>,
     /// `q_i` are the lattice positions of the last rebuild (set them at the next P2G).
     nodes_fresh: bool,
+    affine_offsets: AffineOffsets,
     _stencil: PhantomData<(K, L)>,
 }
 
@@ -230,6 +269,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
             multi_body: false,
             node_positions: Vec::new(),
             nodes_fresh: true,
+            affine_offsets: AffineOffsets::Reference,
             _stencil: PhantomData,
         }
     }
@@ -241,6 +281,17 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
     pub fn set_kernel_mpm(&mut self, flip: T) {
         self.kernel_mpm = Some(flip);
         self.built = false;
+    }
+
+    /// Chooses the offsets of the affine term (MLS only; default
+    /// [`AffineOffsets::Reference`]). Call before the first step.
+    pub fn set_affine_offsets(&mut self, offsets: AffineOffsets) {
+        self.affine_offsets = offsets;
+    }
+
+    /// The offsets of the affine term.
+    pub fn affine_offsets(&self) -> AffineOffsets {
+        self.affine_offsets
     }
 
     /// Gives every particle (by id) its body. Each body gets its own reference
@@ -658,15 +709,48 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
         let flip = kernel_mpm.is_some_and(|a| a > T::zero());
         // The contact pass places each node at the centroid of its mass (eq. 12).
         let centroids = self.multi_body;
+        // Right after a rebuild the nodes stand on the lattice (`q_i − x_p = r`);
+        // afterwards the affine term acts about the moved nodes (crate docs,
+        // *Angular momentum*).
+        let moved = self.affine_offsets == AffineOffsets::Nodes
+            && !self.nodes_fresh
+            && self.node_positions.len() == self.grid.node_count();
+        let node_q = &self.node_positions;
+        let gw = T::lit(L::gather_weight());
         self.grid
             .scatter(ext, flip, centroids, |_home, range, buf| {
+                let mut offsets = [Vector::<T, D>::zeros(); 2 * 64];
                 for i in range {
                     let lane = lanes.get(i).copied().unwrap_or(0);
                     let xs = st.position[i];
                     let kp = st.moment_inverse[i];
-                    let c = match kernel_mpm {
-                        Some(_) => Matrix::<T, D>::zeros(),
-                        None => p.affine.get(i).map_or(Matrix::<T, D>::zeros(), |b| b * kp),
+                    let w = &st.weights[i * npp..(i + 1) * npp];
+                    let about_nodes = moved && kernel_mpm.is_none() && !p.affine.is_empty();
+                    let c = match (kernel_mpm, p.affine.get(i)) {
+                        (None, Some(b)) if about_nodes => {
+                            // APIC on the moved nodes: C = B̃ D̃⁻¹ with
+                            // D̃ = γ Σ W (q − x)(q − x)ᵀ.
+                            let mut second = Matrix::<T, D>::zeros();
+                            for k in 0..L::GRIDS {
+                                let (mut base, _) = geometry::<T, D, K, L>(&xs, inv_h, k);
+                                base[0] += lane;
+                                for q in 0..per_grid {
+                                    let mut node = base;
+                                    let mut rem = q;
+                                    for na in node.iter_mut() {
+                                        *na += (rem % K::NODES_PER_AXIS) as i32;
+                                        rem /= K::NODES_PER_AXIS;
+                                    }
+                                    let e = k * per_grid + q;
+                                    let d = node_q[buf.grid_index(k, &node)] - p.x[i];
+                                    offsets[e] = d;
+                                    second += d * (d.transpose() * w[e]);
+                                }
+                            }
+                            try_inverse(&(second * gw)).map_or(b * kp, |di| b * di)
+                        }
+                        (None, Some(b)) => b * kp,
+                        _ => Matrix::<T, D>::zeros(),
                     };
                     let fsn_inv_t = try_inverse(&st.relative_deformation[i])
                         .map_or(Matrix::<T, D>::identity(), |f| f.transpose());
@@ -684,7 +768,6 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
                         &[][..]
                     };
                     let (m, v, x) = (p.mass[i], p.v[i], p.x[i]);
-                    let w = &st.weights[i * npp..(i + 1) * npp];
                     for k in 0..L::GRIDS {
                         let (mut base, frac) = geometry::<T, D, K, L>(&xs, inv_h, k);
                         base[0] += lane;
@@ -706,7 +789,12 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
                                 Some(g) => stress * g,
                                 None => force * r * wq,
                             };
-                            buf.add(k, &node, mw, &((v + c * r) * mw), &impulse);
+                            let d = if about_nodes {
+                                offsets[k * per_grid + q]
+                            } else {
+                                r
+                            };
+                            buf.add(k, &node, mw, &((v + c * d) * mw), &impulse);
                             if centroids {
                                 buf.add_position(k, &node, &(x * mw));
                             }
@@ -890,6 +978,12 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
         let (position, moment_inverse, weights) = (&*position, &*moment_inverse, &*weights);
         let gradients = &*gradients;
         let kernel_mpm = self.kernel_mpm;
+        // The moment B̃ is taken about the nodes as they stand before this step moves
+        // them; right after a rebuild they are the lattice nodes (`q_i − x_p = r`).
+        let node_q = &self.node_positions;
+        let moved = self.affine_offsets == AffineOffsets::Nodes
+            && !self.nodes_fresh
+            && node_q.len() == grid.node_count();
         let Particles {
             id,
             x,
@@ -916,6 +1010,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
             let w = &weights[p * npp..(p + 1) * npp];
             let mut vel = Vector::<T, D>::zeros();
             let mut b = Matrix::<T, D>::zeros();
+            let mut b_nodes = Matrix::<T, D>::zeros();
             let mut first_moment = Vector::<T, D>::zeros();
             let mut kernel_grad = Matrix::<T, D>::zeros();
             let mut change = Vector::<T, D>::zeros();
@@ -947,6 +1042,10 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
                     } else {
                         b += vi * wq * r.transpose();
                         first_moment += r * wq;
+                        if moved {
+                            let d = node_q[view.index(k, &node)] - *xp;
+                            b_nodes += vi * wq * d.transpose();
+                        }
                     }
                 }
             }
@@ -967,7 +1066,8 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
             let fsn_inv = try_inverse(fsn);
             *vp = vel;
             if let Some(a) = ap {
-                *a = b;
+                // The affine moment about the nodes: B̃ = γ Σ W v (q − x)ᵀ.
+                *a = if moved { b_nodes * gw } else { b };
             }
             let pid = id[p];
             if let Err(e) = advect_checked(pid, xp, &vel, dt, h, (&lo, &hi)) {

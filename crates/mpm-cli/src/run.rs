@@ -8,10 +8,13 @@ use crate::output::{
 };
 use crate::sampling::{particle_volume, sample_body};
 use crate::scene::{
-    Boundary, ColliderSpec, GridKind, IntegratorKind, Kernel as KernelKind, MaterialSpec,
-    ModelKind, OutputFormat, Precision, Reduction, ReferenceKind, Scene, TimeStep, TransferKind,
+    Boundary, ColliderSpec, GridKind, IntegratorKind, Kernel as KernelKind, LagrangianAffine,
+    MaterialSpec, ModelKind, OutputFormat, Precision, Reduction, ReferenceKind, Scene, TimeStep,
+    TransferKind,
 };
-use mpm_aul::{Adaptive, Eulerian, Reference, Simulation, TimeStepPolicy, TotalLagrangian};
+use mpm_aul::{
+    Adaptive, AffineOffsets, Eulerian, Reference, Simulation, TimeStepPolicy, TotalLagrangian,
+};
 use mpm_constitutive::{
     ConstitutiveError, DruckerPrager, ElasticModel, FixedCorotated, HenckyElasticity, JFluid, Lame,
     Material, Nacc, NeoHookean, Snow, StateNeeds, VonMises,
@@ -543,6 +546,10 @@ pub fn build_simulation<T: Real, const D: usize, K: Kernel, L: GridLayout>(
             epsilon: s.adaptive_epsilon,
             eta: s.adaptive_eta,
         }),
+    });
+    sim.set_affine_offsets(match s.lagrangian_affine {
+        LagrangianAffine::Reference => AffineOffsets::Reference,
+        LagrangianAffine::Nodes => AffineOffsets::Nodes,
     });
     sim.set_bodies(body_of.clone());
     let integrator = match s.integrator {

@@ -111,6 +111,9 @@ pub struct Simulation {
     pub adaptive_epsilon: f64,
     #[serde(default = "default_adaptive")]
     pub adaptive_eta: f64,
+    /// Total-Lagrangian and adaptive MLS: offsets of the affine velocity term.
+    #[serde(default)]
+    pub lagrangian_affine: LagrangianAffine,
     #[serde(default)]
     pub integrator: IntegratorKind,
     /// Implicit integrators: Newton stops at this relative residual.
@@ -219,6 +222,18 @@ pub enum ReferenceKind {
     Eulerian,
     TotalLagrangian,
     Adaptive,
+}
+
+/// `simulation.lagrangian_affine`: the offsets the MLS-A-ULMPM affine term is taken on.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum LagrangianAffine {
+    /// The paper's eq. 28 (reference offsets): robust, angular momentum drifts a little.
+    #[default]
+    Reference,
+    /// APIC about the moved nodes: angular momentum to round-off, less robust under
+    /// extreme node distortion.
+    Nodes,
 }
 
 #[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]

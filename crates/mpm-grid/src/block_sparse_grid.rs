@@ -31,9 +31,19 @@ pub struct LocalBuffer<'a, T: Real, const D: usize> {
     momentum: &'a mut [Vector<T, D>],
     impulse: &'a mut [Vector<T, D>],
     position: &'a mut [Vector<T, D>],
+    neighbors: &'a [u32; 8],
+    grid_stride: usize,
 }
 
 impl<T: Real, const D: usize> LocalBuffer<'_, T, D> {
+    /// Index in the grid's node arrays (as [`GatherView::index`]) of node `node` of grid
+    /// `grid`, for scatters that read per-node data the caller keeps alongside the grid
+    /// (the moving node positions of an updated-Lagrangian step).
+    #[inline(always)]
+    pub fn grid_index(&self, grid: usize, node: &[i32; D]) -> usize {
+        flat_node_index(&self.origin, self.neighbors, self.grid_stride, grid, node)
+    }
+
     #[inline(always)]
     fn local_index(&self, grid: usize, node: &[i32; D]) -> usize {
         let mut idx = 0usize;
@@ -162,21 +172,34 @@ pub struct GatherView<'a, T: Real, const D: usize> {
     velocity_old: &'a [Vector<T, D>],
 }
 
+/// Flat index of `node` of grid `grid` in the node arrays, from the home block's
+/// origin (node coordinates) and its table of the 2^D blocks a stencil can reach.
+#[inline(always)]
+fn flat_node_index<const D: usize>(
+    origin: &[i32; D],
+    neighbors: &[u32; 8],
+    grid_stride: usize,
+    grid: usize,
+    node: &[i32; D],
+) -> usize {
+    let mut code = 0usize;
+    let mut local = 0usize;
+    let mut stride = 1usize;
+    for a in 0..D {
+        let r = (node[a] - origin[a]) as usize;
+        code |= (r >> 2) << a;
+        local += (r & 3) * stride;
+        stride *= BLOCK as usize;
+    }
+    let block = neighbors[code] as usize;
+    debug_assert!(block != NONE as usize);
+    grid * grid_stride + block * stride + local
+}
+
 impl<'a, T: Real, const D: usize> GatherView<'a, T, D> {
     #[inline(always)]
     fn flat(&self, grid: usize, node: &[i32; D]) -> usize {
-        let mut code = 0usize;
-        let mut local = 0usize;
-        let mut stride = 1usize;
-        for a in 0..D {
-            let r = (node[a] - self.origin[a]) as usize;
-            code |= (r >> 2) << a;
-            local += (r & 3) * stride;
-            stride *= BLOCK as usize;
-        }
-        let block = self.neighbors[code] as usize;
-        debug_assert!(block != NONE as usize);
-        grid * self.grid_stride + block * stride + local
+        flat_node_index(&self.origin, self.neighbors, self.grid_stride, grid, node)
     }
     /// Indexer for the nodes `first + j`, `j ∈ [0, nodes_per_axis)^D`, of grid `grid`
     /// (at most 4 nodes per axis): the block and in-block offsets are worked out once
@@ -562,6 +585,8 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
         );
         let home_blocks = &self.home_blocks;
         let home_ranges = &self.home_ranges;
+        let home_neighbors = &self.home_neighbors;
+        let grid_stride = self.blocks.len() * self.nodes_per_block;
         (
             self.scratch_mass.par_chunks_mut(per_home),
             self.scratch_momentum.par_chunks_mut(per_home),
@@ -579,6 +604,8 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
                     momentum: p,
                     impulse: imp,
                     position: pos,
+                    neighbors: &home_neighbors[h],
+                    grid_stride,
                 };
                 let (s, e) = home_ranges[h];
                 f(h, s..e, &mut buf);
