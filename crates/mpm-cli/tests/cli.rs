@@ -842,6 +842,12 @@ fn verify_quick_conservation_and_convergence() {
     );
     let png = image::open(out_dir.join("convergence_plate.png")).unwrap();
     assert_eq!(png.width(), 900);
+    // The report shows the plots of the checks that ran, and only those.
+    assert!(md.contains("](convergence_plate.png)"), "{md}");
+    assert!(
+        !md.contains("](diffusion_jelly") && !md.contains("](contact_"),
+        "{md}"
+    );
 
     let out = mpm(&["verify", "--quick", "--only", "nonsense"]);
     assert!(!out.status.success());
