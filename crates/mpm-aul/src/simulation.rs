@@ -175,8 +175,9 @@ pub struct Simulation<T: Real, const D: usize, K: Kernel, L: GridLayout> {
     pub reference_updates: u64,
     /// The stepper (grid and work buffers) the reference needs.
     pub stepper: Stepper<T, D, K, L>,
-    /// Offsets of the Lagrangian steppers' affine term ([`Self::set_affine_offsets`]).
-    pub affine_offsets: AffineOffsets,
+    /// Offsets of the Lagrangian steppers' affine term, kept for steppers that
+    /// [`Self::set_reference`] makes later (set through [`Self::set_affine_offsets`]).
+    affine_offsets: AffineOffsets,
     /// Time integrator.
     pub integrator: Integrator,
     /// Newton and CG tolerances and caps (implicit integrators).

@@ -717,6 +717,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
             && self.node_positions.len() == self.grid.node_count();
         let node_q = &self.node_positions;
         let gw = T::lit(L::gather_weight());
+        let about_nodes = moved && kernel_mpm.is_none() && !p.affine.is_empty();
         self.grid
             .scatter(ext, flip, centroids, |_home, range, buf| {
                 let mut offsets = [Vector::<T, D>::zeros(); 2 * 64];
@@ -725,7 +726,6 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
                     let xs = st.position[i];
                     let kp = st.moment_inverse[i];
                     let w = &st.weights[i * npp..(i + 1) * npp];
-                    let about_nodes = moved && kernel_mpm.is_none() && !p.affine.is_empty();
                     let c = match (kernel_mpm, p.affine.get(i)) {
                         (None, Some(b)) if about_nodes => {
                             // APIC on the moved nodes: C = B̃ D̃⁻¹ with
