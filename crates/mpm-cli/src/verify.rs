@@ -10,9 +10,9 @@
 //!   included (paper 6e-3 over 5 s). Exact for APIC in exact arithmetic: threshold
 //!   1e-9 in f64 (round-off of sums over ~10⁴ particles and thousands of steps).
 //! - CK-MPM §6.2 / Fig. 14, numerical diffusion: a jelly cube set spinning, free in
-//!   mid-air and standing on a sticky floor; the vibration energy (kinetic + elastic)
-//!   kept at the end, compact over quadratic. The paper shows compact keeps more:
-//!   threshold ratio ≥ 1.
+//!   mid-air and standing on a sticky floor (its base on the wall plane); the
+//!   vibration energy (kinetic + elastic) kept at the end, compact over quadratic.
+//!   The paper shows compact keeps more: threshold ratio ≥ 1.
 //! - CK-MPM §6.2 / Fig. 13, contact: a ball falls down the bore of a hollow cylinder
 //!   (both fixed-corotated, the tube standing on a sticky floor) with 1.25h and 1.5h
 //!   between the surfaces; the ball's descent over 0.2 s against free fall. The paper:
@@ -20,9 +20,11 @@
 //!   ≥ 0.9 of free fall, quadratic at 1.5h ≤ 0.5 (it shares grid nodes across the gap).
 //! - CK-MPM §6.2 / Fig. 12, unwanted fracture vs sampling: an elastic bar twisted by
 //!   its two ends (E = 100 Pa, ν = 0.4, ρ = 2 kg/m³, Eulerian), pieces of the particle
-//!   graph (`connected_components`, particles closer than h linked) for compact at 8,
-//!   16 and 27 particles per cell and quadratic at 8. The paper: quadratic at 8 and
-//!   compact at 27 stay whole, 16 breaks less than 8. Threshold: exactly that.
+//!   graph (`component_sizes`, particles closer than h linked; a piece holds ≥ 0.1 %
+//!   of the particles, smaller clusters are debris) for compact at 8, 16 and 27
+//!   particles per cell and quadratic at 8. The paper: quadratic at 8 and compact at
+//!   27 stay whole, 16 breaks less than 8. Threshold: exactly that, "less" meaning a
+//!   smaller fraction of the particles outside the largest piece.
 //! - A-ULMPM Fig. 4/7, numerical fracture: the twisting, stretching column
 //!   (`twisting_column.toml`), pieces for Eulerian, total-Lagrangian and adaptive
 //!   references. Threshold: Eulerian ≥ 2 pieces, TL and A-UL 1.
@@ -42,7 +44,7 @@ use crate::plot::{line_chart, Series};
 use crate::run::{run_scene, RunOptions};
 use crate::scene::parse_scene_in;
 use crate::study::{compare, load_run, RunData};
-use mpm_transfer::connected_components;
+use mpm_transfer::Fragments;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -263,51 +265,51 @@ fn angular_momentum_rod(opts: &VerifyOptions) -> Result<CheckResult, VerifyError
 /// the sticky floor (the paper's setting); otherwise it spins free in mid-air, where
 /// only the transfers can dissipate.
 ///
-/// On the floor the result depends strongly on where the cube's base sits relative
-/// to the stuck node layer (measured, h = 1/32: base at h, compact keeps 0.04 and
-/// quadratic 0.34; at 1.5h, 0.59 and 0.21; at 2h, 0.56 and 0.57). The particles snap to
-/// a lattice of spacing h/2, so those are the distinct placements; the check
-/// compares the kernels averaged over them and reports each.
+/// On the floor the cube's base lies on the wall plane (`y = h`), the one placement
+/// where it stands on the floor for both kernels. A base raised by h/2 or h (the
+/// other placements of the h/2 particle lattice) leaves a gap: compact's bottom
+/// particles then reach no stuck node (support h; the dual grids' stuck nodes sit at
+/// h/4 and 3h/4) and the cube spins free, its energy flat at the free-spin value,
+/// while quadratic's (support 1.5h) still feel the floor. Averaging those placements,
+/// as this check did before, compared a free cube with a held one.
+///
+/// Measured (base on the wall plane, kept of the initial energy): h = 1/32 compact/dual
+/// 0.039, quadratic/single 0.336, and quadratic on the dual grid 0.004; h = 1/64
+/// 0.214 vs 0.609. So ours FAILs here, and the loss comes with the dual grid at the
+/// wall, not with the compact kernel (quadratic loses it too on the dual grid).
+/// Probably because the plane cuts the two grids' node layers at different depths
+/// (stuck nodes h/4 and 3h/4 below it, the first free ones 3h/4 and h/4 above), so
+/// near the floor the grids carry different velocities and G2P's average filters
+/// the difference out every step; not checked further. In mid-air (`free_spin`)
+/// compact keeps more, as the paper says.
 fn diffusion_jelly(opts: &VerifyOptions, sticky: bool) -> Result<CheckResult, VerifyError> {
     let t0 = Instant::now();
     let h: f64 = if opts.quick { 0.03125 } else { 0.015625 };
-    let bases: Vec<f64> = if sticky {
-        vec![h, 1.5 * h, 2.0 * h]
-    } else {
-        vec![0.375]
-    };
+    let y0 = if sticky { h } else { 0.375 };
     let tag = if sticky { "sticky_floor" } else { "free_spin" };
     let mut series: Vec<Series> = Vec::new();
-    // kept[kernel][placement]
-    let mut kept = [Vec::new(), Vec::new()];
-    for (k, kernel) in ["compact", "quadratic"].into_iter().enumerate() {
-        for (b, y0) in bases.iter().enumerate() {
-            let data = run_text(
-                opts,
-                &format!("jelly_{tag}_{kernel}_{b}"),
-                JELLY_STICKY,
-                &[
-                    &format!("simulation.kernel={kernel}"),
-                    &format!("simulation.h={h}"),
-                    &format!("body.0.shape.min=[0.375, {y0}, 0.375]"),
-                    &format!("body.0.shape.max=[0.625, {}, 0.625]", y0 + 0.25),
-                ],
-            )?;
-            let t = column(&data, "time")?;
-            let ke = column(&data, "kinetic_energy")?;
-            let el = column(&data, "elastic_energy")?;
-            let vib: Vec<(f64, f64)> = (0..t.len()).map(|i| (t[i], ke[i] + el[i])).collect();
-            // Mean over the last quarter (several rocking periods) over the initial.
-            let tail = &vib[vib.len() * 3 / 4..];
-            let mean = tail.iter().map(|p| p.1).sum::<f64>() / tail.len().max(1) as f64;
-            kept[k].push(mean / vib[0].1);
-            let label = if sticky {
-                format!("{kernel}, base {:.1}h", y0 / h)
-            } else {
-                kernel.to_string()
-            };
-            series.push((label, vib));
-        }
+    let mut kept = Vec::new();
+    for kernel in ["compact", "quadratic"] {
+        let data = run_text(
+            opts,
+            &format!("jelly_{tag}_{kernel}"),
+            JELLY_STICKY,
+            &[
+                &format!("simulation.kernel={kernel}"),
+                &format!("simulation.h={h}"),
+                &format!("body.0.shape.min=[0.375, {y0}, 0.375]"),
+                &format!("body.0.shape.max=[0.625, {}, 0.625]", y0 + 0.25),
+            ],
+        )?;
+        let t = column(&data, "time")?;
+        let ke = column(&data, "kinetic_energy")?;
+        let el = column(&data, "elastic_energy")?;
+        let vib: Vec<(f64, f64)> = (0..t.len()).map(|i| (t[i], ke[i] + el[i])).collect();
+        // Mean over the last quarter (several rocking periods) over the initial.
+        let tail = &vib[vib.len() * 3 / 4..];
+        let mean = tail.iter().map(|p| p.1).sum::<f64>() / tail.len().max(1) as f64;
+        kept.push(mean / vib[0].1);
+        series.push((kernel.to_string(), vib));
     }
     let file = format!("diffusion_jelly_{tag}.png");
     line_chart(
@@ -325,38 +327,25 @@ fn diffusion_jelly(opts: &VerifyOptions, sticky: bool) -> Result<CheckResult, Ve
         (900, 540),
     )
     .map_err(|e| VerifyError(e.to_string()))?;
-    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
-    let ours = mean(&kept[0]) / mean(&kept[1]);
-    let per_base = bases
-        .iter()
-        .enumerate()
-        .map(|(b, y0)| {
-            format!(
-                "{}compact {:.3} / quadratic {:.3}",
-                if sticky {
-                    format!("base {:.1}h: ", y0 / h)
-                } else {
-                    String::new()
-                },
-                kept[0][b],
-                kept[1][b]
-            )
-        })
-        .collect::<Vec<_>>()
-        .join("; ");
+    let ours = kept[0] / kept[1];
     Ok(CheckResult {
         name: format!("diffusion_jelly_{tag}"),
         source: "CK-MPM §6.2, Fig. 14".into(),
-        quantity: if sticky {
-            "vibration energy kept (last quarter / initial), compact ÷ quadratic, mean over base placements".into()
-        } else {
-            "vibration energy kept (last quarter / initial), compact ÷ quadratic".into()
-        },
+        quantity: "vibration energy kept (last quarter / initial), compact ÷ quadratic".into(),
         ours,
         paper: Some("> 1 (compact keeps more)".into()),
         threshold: "≥ 1".into(),
         pass: ours >= 1.0,
-        detail: format!("kept of the initial energy: {per_base}; plot {file}"),
+        detail: format!(
+            "kept of the initial energy (h = {h}{}): compact {:.3} / quadratic {:.3}; plot {file}",
+            if sticky {
+                ", base on the wall plane y = h"
+            } else {
+                ""
+            },
+            kept[0],
+            kept[1]
+        ),
         seconds: t0.elapsed().as_secs_f64(),
     })
 }
@@ -371,10 +360,14 @@ fn grid_for(kernel: &str) -> &'static str {
     }
 }
 
-/// Pieces of a run's particle cloud at its last frame, particles closer than `h`
-/// linked (the distance across which the grid still carries force between them).
-fn pieces(data: &RunData, h: f64) -> usize {
-    connected_components(&data.final_positions(), h)
+/// How a body came apart at the last frame (particles closer than `h` linked: the
+/// distance across which the grid still carries force between them). A piece holds
+/// at least 0.1 % of the particles: a cluster of a few (measured: 2 of 16,384 for the
+/// quadratic twisted bar at h = 0.02) is not the tear the papers show, whose torn-off
+/// ends hold 10–60 % of the bar; 0.1 % of these bodies is 16–55 particles, 2–7 cells of
+/// material.
+fn fragments(data: &RunData, h: f64) -> Fragments {
+    Fragments::of(&data.final_positions(), h, 1e-3)
 }
 
 /// The ball's descent in the tube over free fall, for compact at gaps 1.5h and 1.25h
@@ -501,20 +494,24 @@ fn fracture_twisting_bar(opts: &VerifyOptions) -> Result<CheckResult, VerifyErro
                 "collider.1.velocity=[0.0, 0.0, 0.0]",
             ],
         )?;
-        count.push(pieces(&data, h));
+        count.push(fragments(&data, h));
     }
-    let pass = count[0] >= count[1] && count[1] >= count[2] && count[2] == 1 && count[3] == 1;
+    let (c8, c16, c27, q8) = (count[0], count[1], count[2], count[3]);
+    // "16 breaks less than 8": less of the bar torn off (ties only when both are whole).
+    let pass = c8.detached >= c16.detached
+        && c16.detached >= c27.detached
+        && c27.pieces == 1
+        && q8.pieces == 1;
     Ok(CheckResult {
         name: "fracture_twisting_bar_ppc".into(),
         source: "CK-MPM §6.2, Fig. 12".into(),
         quantity: "pieces of the twisted bar, compact at 27 particles per cell".into(),
-        ours: count[2] as f64,
+        ours: c27.pieces as f64,
         paper: Some("1; 16 ppc breaks less than 8; quadratic 8 ppc 1".into()),
-        threshold: "compact pieces non-increasing 8 → 16 → 27, 1 at 27; quadratic at 8: 1".into(),
+        threshold: "compact: detached fraction non-increasing 8 → 16 → 27 ppc, 1 piece at 27; quadratic at 8: 1 piece (a piece: ≥ 0.1 % of the particles)".into(),
         pass,
         detail: format!(
-            "pieces at t = 3 s (h = {h}, Eulerian MLS): compact 8 ppc {}, 16 ppc {}, 27 ppc {}; quadratic 8 ppc {}",
-            count[0], count[1], count[2], count[3]
+            "pieces at t = 3 s (h = {h}, Eulerian MLS): compact 8 ppc {c8}, 16 ppc {c16}, 27 ppc {c27}; quadratic 8 ppc {q8}"
         ),
         seconds: t0.elapsed().as_secs_f64(),
     })
@@ -536,19 +533,19 @@ fn fracture_twisting_column(opts: &VerifyOptions) -> Result<CheckResult, VerifyE
                 "simulation.frame_dt=3.0",
             ],
         )?;
-        count.push(pieces(&data, h));
+        count.push(fragments(&data, h));
     }
+    let (eulerian, tl, aul) = (count[0], count[1], count[2]);
     Ok(CheckResult {
         name: "fracture_twisting_column".into(),
         source: "A-ULMPM Fig. 4/7".into(),
         quantity: "pieces of the twisted, stretched column, Eulerian".into(),
-        ours: count[0] as f64,
+        ours: eulerian.pieces as f64,
         paper: Some("Eulerian tears; TL and A-UL whole".into()),
-        threshold: "Eulerian ≥ 2, TL = A-UL = 1".into(),
-        pass: count[0] >= 2 && count[1] == 1 && count[2] == 1,
+        threshold: "Eulerian ≥ 2 pieces, TL = A-UL = 1 (a piece: ≥ 0.1 % of the particles)".into(),
+        pass: eulerian.pieces >= 2 && tl.pieces == 1 && aul.pieces == 1,
         detail: format!(
-            "pieces at t = 3 s (h = {h}): Eulerian {}, total-Lagrangian {}, adaptive {}",
-            count[0], count[1], count[2]
+            "pieces at t = 3 s (h = {h}): Eulerian {eulerian}, total-Lagrangian {tl}, adaptive {aul}"
         ),
         seconds: t0.elapsed().as_secs_f64(),
     })

@@ -87,6 +87,12 @@ pub fn particle_totals<T: Real, const D: usize, K: Kernel, L: GridLayout>(
 /// fracture: Eulerian MPM transmits forces only between particles that share grid
 /// nodes, so a gap wider than a cell splits a body for good.
 pub fn connected_components<const D: usize>(points: &[[f64; D]], radius: f64) -> usize {
+    component_sizes(points, radius).len()
+}
+
+/// Sizes (point counts) of the connected pieces of [`connected_components`], largest
+/// first: tells a torn-off end from a few stray particles.
+pub fn component_sizes<const D: usize>(points: &[[f64; D]], radius: f64) -> Vec<usize> {
     use std::collections::HashMap;
     let n = points.len();
     let mut parent: Vec<usize> = (0..n).collect();
@@ -125,12 +131,59 @@ pub fn connected_components<const D: usize>(points: &[[f64; D]], radius: f64) ->
             }
         }
     }
-    (0..n).filter(|&i| find(&mut parent, i) == i).count()
+    let mut size = vec![0usize; n];
+    for i in 0..n {
+        size[find(&mut parent, i)] += 1;
+    }
+    let mut sizes: Vec<usize> = size.into_iter().filter(|&s| s > 0).collect();
+    sizes.sort_unstable_by(|a, b| b.cmp(a));
+    sizes
+}
+
+/// How a body came apart: its point cloud's connected pieces ([`component_sizes`])
+/// split into pieces (at least a given fraction of the points) and debris (smaller
+/// clusters: a few stray particles, not a tear).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Fragments {
+    /// Pieces holding at least the given fraction of the points.
+    pub pieces: usize,
+    /// Smaller clusters.
+    pub debris: usize,
+    /// Fraction of the points outside the largest piece.
+    pub detached: f64,
+}
+
+impl Fragments {
+    /// Pieces of `points` linked closer than `radius`; a piece holds at least
+    /// `least_fraction` of the points.
+    pub fn of<const D: usize>(points: &[[f64; D]], radius: f64, least_fraction: f64) -> Self {
+        let sizes = component_sizes(points, radius);
+        let n: usize = sizes.iter().sum();
+        let least = least_fraction * n as f64;
+        let pieces = sizes.iter().filter(|&&s| s as f64 >= least).count();
+        Fragments {
+            pieces,
+            debris: sizes.len() - pieces,
+            detached: 1.0 - sizes.first().copied().unwrap_or(0) as f64 / n.max(1) as f64,
+        }
+    }
+}
+
+impl std::fmt::Display for Fragments {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} ({:.2} % detached, {} debris)",
+            self.pieces,
+            100.0 * self.detached,
+            self.debris
+        )
+    }
 }
 
 #[cfg(test)]
 mod tests {
-    use super::connected_components;
+    use super::{component_sizes, connected_components, Fragments};
 
     #[test]
     fn components_of_simple_clouds() {
@@ -140,6 +193,33 @@ mod tests {
         let mut two = line.clone();
         two.extend((0..5).map(|i| [5.0 + i as f64 * 0.1, 1.0]));
         assert_eq!(connected_components(&two, 0.11), 2);
+        assert_eq!(component_sizes(&two, 0.11), vec![10, 5]);
+        assert_eq!(component_sizes(&line, 0.09), vec![1; 10]);
         assert_eq!(connected_components::<3>(&[], 1.0), 0);
+    }
+
+    /// A row of points 0.5 apart (linked at radius 1) starting at `x0`.
+    fn row(n: usize, x0: f64) -> Vec<[f64; 3]> {
+        (0..n).map(|i| [x0 + 0.5 * i as f64, 0.0, 0.0]).collect()
+    }
+
+    #[test]
+    fn stray_points_are_debris_and_a_torn_end_is_a_piece() {
+        let whole = Fragments::of(&row(2000, 0.0), 1.0, 1e-3);
+        assert_eq!((whole.pieces, whole.debris, whole.detached), (1, 0, 0.0));
+        // Two strays far away: 0.1 % of 2,002 points is 2.002, so the pair is debris.
+        let mut strays = row(2000, 0.0);
+        strays.extend(row(2, 5000.0));
+        let f = Fragments::of(&strays, 1.0, 1e-3);
+        assert_eq!((f.pieces, f.debris), (1, 1));
+        assert!((f.detached - 2.0 / 2002.0).abs() < 1e-15);
+        // An end of 500 torn off: a second piece holding a quarter of the points.
+        let mut torn = row(1500, 0.0);
+        torn.extend(row(500, 2000.0));
+        let f = Fragments::of(&torn, 1.0, 1e-3);
+        assert_eq!((f.pieces, f.debris), (2, 0));
+        assert!((f.detached - 0.25).abs() < 1e-15);
+        assert_eq!(f.to_string(), "2 (25.00 % detached, 0 debris)");
+        assert_eq!(Fragments::of::<3>(&[], 1.0, 1e-3).pieces, 0);
     }
 }

@@ -21,7 +21,7 @@ mod separable;
 pub mod timestep;
 
 pub use apic::Apic;
-pub use diagnostics::{connected_components, particle_totals, Totals};
+pub use diagnostics::{component_sizes, connected_components, particle_totals, Fragments, Totals};
 pub use distributed::{CommStats, Decomposition};
 pub use explicit_step::{particle_chunks, ExplicitStepper, PhaseTimes, StepParams, PARTICLE_CHUNK};
 pub use flip::Flip;
