@@ -268,7 +268,7 @@ fn angular_momentum_rod(opts: &VerifyOptions) -> Result<CheckResult, VerifyError
 /// On the floor the cube's base lies on the wall plane (`y = h`), the one placement
 /// where it stands on the floor for both kernels. A base raised by h/2 or h (the
 /// other placements of the h/2 particle lattice) leaves a gap: compact's bottom
-/// particles then reach no stuck node (support h; the dual grids' stuck nodes sit at
+/// particles then reach no stuck node (support h; the dual grids' stuck nodes sit at y =
 /// h/4 and 3h/4) and the cube spins free, its energy flat at the free-spin value,
 /// while quadratic's (support 1.5h) still feel the floor. Averaging those placements,
 /// as this check did before, compared a free cube with a held one.
