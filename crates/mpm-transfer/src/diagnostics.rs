@@ -158,7 +158,7 @@ impl Fragments {
     /// `least_fraction` of the points.
     pub fn of<const D: usize>(points: &[[f64; D]], radius: f64, least_fraction: f64) -> Self {
         let sizes = component_sizes(points, radius);
-        let n: usize = sizes.iter().sum();
+        let n = points.len();
         let least = least_fraction * n as f64;
         let pieces = sizes.iter().filter(|&&s| s as f64 >= least).count();
         Fragments {
