@@ -112,7 +112,7 @@ use mpm_constitutive::{Material, StateMut};
 use mpm_grid::{BlockSparseGrid, Collider, GridLayout, BLOCK};
 use mpm_implicit::{GridSolve, ImplicitStepError, Integrator, NewtonSettings, SolveStats};
 use mpm_kernels::{Kernel, Stencil};
-use mpm_math::{determinant, try_inverse, Matrix, Real, Vector};
+use mpm_math::{determinant, flush_subnormals, try_inverse, Matrix, Real, Vector};
 use mpm_transfer::{
     advect_checked, particle_chunks, Particles, PhaseTimes, StepError, StepParams, PARTICLE_CHUNK,
 };
@@ -1104,29 +1104,31 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
             .into_par_iter()
             .enumerate()
             .filter_map(|(c, (xs, vs, as_, fsns, djs, fs, qs, js, ls))| {
-                let mut worst: Option<StepError> = None;
-                let mut as_ = as_.iter_mut();
-                let (mut fs, mut qs, mut js, mut ls) =
-                    (fs.iter_mut(), qs.iter_mut(), js.iter_mut(), ls.iter_mut());
-                for (k, (((xp, vp), fsn), dj)) in xs
-                    .iter_mut()
-                    .zip(vs.iter_mut())
-                    .zip(fsns.iter_mut())
-                    .zip(djs.iter_mut())
-                    .enumerate()
-                {
-                    let state = StateMut {
-                        deformation: fs.next(),
-                        plastic: qs.next(),
-                        jacobian: js.next(),
-                        velocity_gradient: ls.next(),
-                    };
-                    let p = c * PARTICLE_CHUNK + k;
-                    if let Some(e) = one(p, xp, vp, as_.next(), fsn, dj, state) {
-                        worst = Some(e.lowest(worst));
+                flush_subnormals(|| {
+                    let mut worst: Option<StepError> = None;
+                    let mut as_ = as_.iter_mut();
+                    let (mut fs, mut qs, mut js, mut ls) =
+                        (fs.iter_mut(), qs.iter_mut(), js.iter_mut(), ls.iter_mut());
+                    for (k, (((xp, vp), fsn), dj)) in xs
+                        .iter_mut()
+                        .zip(vs.iter_mut())
+                        .zip(fsns.iter_mut())
+                        .zip(djs.iter_mut())
+                        .enumerate()
+                    {
+                        let state = StateMut {
+                            deformation: fs.next(),
+                            plastic: qs.next(),
+                            jacobian: js.next(),
+                            velocity_gradient: ls.next(),
+                        };
+                        let p = c * PARTICLE_CHUNK + k;
+                        if let Some(e) = one(p, xp, vp, as_.next(), fsn, dj, state) {
+                            worst = Some(e.lowest(worst));
+                        }
                     }
-                }
-                worst
+                    worst
+                })
             })
             .min_by_key(|e| e.particle());
         // The nodes move with the grid velocity (eq. 27): q_i += Δt v_i.

@@ -12,7 +12,7 @@
 //! `G − δ`, `δ ∈ {0,1}^D`, in a fixed order. No atomics, no locks, and the result does
 //! not depend on the number of threads.
 
-use mpm_math::{Real, Vector};
+use mpm_math::{flush_subnormals, Real, Vector};
 use rayon::prelude::*;
 // A fixed, fast hash (rustc's FxHash): the keys are small integer triples, the maps
 // are never iterated for results, and SipHash showed up in profiles of `bin`.
@@ -608,7 +608,9 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
                     grid_stride,
                 };
                 let (s, e) = home_ranges[h];
-                f(h, s..e, &mut buf);
+                // Products of small weights fall below f32's normal range
+                // (mpm_math::flush_subnormals).
+                flush_subnormals(|| f(h, s..e, &mut buf));
             });
     }
 
@@ -742,43 +744,45 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
             .into_par_iter()
             .enumerate()
             .for_each(|(chunk, (m, p, imp, pos))| {
-                let grid = chunk / n_blocks;
-                let block = chunk % n_blocks;
-                for code in 0..(1usize << D) {
-                    let h = sources[block][code];
-                    if h == NONE {
-                        continue;
-                    }
-                    let d = delta::<D>(code);
-                    let base = h as usize * per_home + grid * per_grid;
-                    for l in 0..npb {
-                        // Node l of block G is at 4δ + l in the home block's buffer.
-                        let mut idx = 0usize;
-                        let mut stride = 1usize;
-                        let mut rem = l;
-                        let mut inside = true;
-                        for da in d.iter() {
-                            let la = rem % BLOCK as usize + (*da as usize) * BLOCK as usize;
-                            rem /= BLOCK as usize;
-                            if la >= ext {
-                                inside = false;
-                                break;
-                            }
-                            idx += la * stride;
-                            stride *= ext;
+                flush_subnormals(|| {
+                    let grid = chunk / n_blocks;
+                    let block = chunk % n_blocks;
+                    for code in 0..(1usize << D) {
+                        let h = sources[block][code];
+                        if h == NONE {
+                            continue;
                         }
-                        if inside {
-                            m[l] += sm[base + idx];
-                            p[l] += sp[base + idx];
-                            if separate {
-                                imp[l] += si[base + idx];
+                        let d = delta::<D>(code);
+                        let base = h as usize * per_home + grid * per_grid;
+                        for l in 0..npb {
+                            // Node l of block G is at 4δ + l in the home block's buffer.
+                            let mut idx = 0usize;
+                            let mut stride = 1usize;
+                            let mut rem = l;
+                            let mut inside = true;
+                            for da in d.iter() {
+                                let la = rem % BLOCK as usize + (*da as usize) * BLOCK as usize;
+                                rem /= BLOCK as usize;
+                                if la >= ext {
+                                    inside = false;
+                                    break;
+                                }
+                                idx += la * stride;
+                                stride *= ext;
                             }
-                            if positions {
-                                pos[l] += sx[base + idx];
+                            if inside {
+                                m[l] += sm[base + idx];
+                                p[l] += sp[base + idx];
+                                if separate {
+                                    imp[l] += si[base + idx];
+                                }
+                                if positions {
+                                    pos[l] += sx[base + idx];
+                                }
                             }
                         }
                     }
-                }
+                })
             });
     }
 
@@ -820,22 +824,24 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
             .par_chunks_mut(npb)
             .enumerate()
             .for_each(|(chunk, v)| {
-                let grid = chunk / n_blocks;
-                let block = blocks[chunk % n_blocks];
-                let first = chunk * npb;
-                for (l, vl) in v.iter_mut().enumerate() {
-                    let m = mass[first + l];
-                    if m > T::zero() {
-                        let node = node_in_block(block, l);
-                        let total = if keep_old {
-                            momentum[first + l] + impulse[first + l]
-                        } else {
-                            momentum[first + l]
-                        };
-                        let q = position.get(first + l).unwrap_or(&zero);
-                        *vl = f(grid, node, m, &total, q);
+                flush_subnormals(|| {
+                    let grid = chunk / n_blocks;
+                    let block = blocks[chunk % n_blocks];
+                    let first = chunk * npb;
+                    for (l, vl) in v.iter_mut().enumerate() {
+                        let m = mass[first + l];
+                        if m > T::zero() {
+                            let node = node_in_block(block, l);
+                            let total = if keep_old {
+                                momentum[first + l] + impulse[first + l]
+                            } else {
+                                momentum[first + l]
+                            };
+                            let q = position.get(first + l).unwrap_or(&zero);
+                            *vl = f(grid, node, m, &total, q);
+                        }
                     }
-                }
+                })
             });
     }
 

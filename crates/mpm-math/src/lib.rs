@@ -10,10 +10,12 @@
 
 mod polar;
 mod small;
+mod subnormals;
 
 pub use nalgebra;
 pub use polar::polar_rotation;
 pub use small::*;
+pub use subnormals::flush_subnormals;
 
 use nalgebra::{RealField, SMatrix, SVector};
 

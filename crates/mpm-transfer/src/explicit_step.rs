@@ -10,7 +10,7 @@ use crate::{advect_checked, StepError};
 use mpm_constitutive::{Material, StateMut};
 use mpm_grid::{optional_chunks, BlockSparseGrid, Collider, GatherView, GridLayout, BLOCK};
 use mpm_kernels::{Kernel, Stencil};
-use mpm_math::{try_inverse, Matrix, Real, Vector};
+use mpm_math::{flush_subnormals, try_inverse, Matrix, Real, Vector};
 use rayon::prelude::*;
 use std::marker::PhantomData;
 use std::time::Instant;
@@ -523,24 +523,26 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
             .into_par_iter()
             .enumerate()
             .filter_map(|(c, (xs, vs, as_, fs, qs, js, ls))| {
-                let mut worst: Option<StepError> = None;
-                let mut as_ = as_.iter_mut();
-                let mut fs = fs.iter_mut();
-                let mut qs = qs.iter_mut();
-                let mut js = js.iter_mut();
-                let mut ls = ls.iter_mut();
-                for (k, (xp, vp)) in xs.iter_mut().zip(vs.iter_mut()).enumerate() {
-                    let state = StateMut {
-                        deformation: fs.next(),
-                        plastic: qs.next(),
-                        jacobian: js.next(),
-                        velocity_gradient: ls.next(),
-                    };
-                    if let Some(e) = one(c * PARTICLE_CHUNK + k, xp, vp, as_.next(), state) {
-                        worst = Some(e.lowest(worst));
+                flush_subnormals(|| {
+                    let mut worst: Option<StepError> = None;
+                    let mut as_ = as_.iter_mut();
+                    let mut fs = fs.iter_mut();
+                    let mut qs = qs.iter_mut();
+                    let mut js = js.iter_mut();
+                    let mut ls = ls.iter_mut();
+                    for (k, (xp, vp)) in xs.iter_mut().zip(vs.iter_mut()).enumerate() {
+                        let state = StateMut {
+                            deformation: fs.next(),
+                            plastic: qs.next(),
+                            jacobian: js.next(),
+                            velocity_gradient: ls.next(),
+                        };
+                        if let Some(e) = one(c * PARTICLE_CHUNK + k, xp, vp, as_.next(), state) {
+                            worst = Some(e.lowest(worst));
+                        }
                     }
-                }
-                worst
+                    worst
+                })
             })
             .min_by_key(|e| e.particle());
         match first_error {
