@@ -17,12 +17,26 @@ pub use polar::polar_rotation;
 pub use small::*;
 pub use subnormals::flush_subnormals;
 
-use nalgebra::{RealField, SMatrix, SVector};
+use nalgebra::{ArrayStorage, RealField, SMatrix, SVector};
 
 /// Column vector of dimension `D`.
 pub type Vector<T, const D: usize> = SVector<T, D>;
 /// Square `D×D` matrix.
 pub type Matrix<T, const D: usize> = SMatrix<T, D, D>;
+
+/// The zero vector, built from its array. nalgebra's `zeros()` fills through an
+/// iterator, which in the transfer loops compiled to narrow stores followed by a wide
+/// reload of the same bytes: a store-forwarding stall per zeroed value.
+#[inline(always)]
+pub fn zero_vector<T: Real, const D: usize>() -> Vector<T, D> {
+    Vector::<T, D>::from_data(ArrayStorage([[T::zero(); D]; 1]))
+}
+
+/// The zero matrix, built from its array (see [`zero_vector`]).
+#[inline(always)]
+pub fn zero_matrix<T: Real, const D: usize>() -> Matrix<T, D> {
+    Matrix::<T, D>::from_data(ArrayStorage([[T::zero(); D]; D]))
+}
 
 /// Floating-point scalar: `f32` (speed) or `f64` (conservation and convergence tests).
 pub trait Real:

@@ -9,8 +9,8 @@ use crate::separable::{node_vector, AxisFactors, SliceSums};
 use crate::{advect_checked, StepError};
 use mpm_constitutive::{Material, StateMut};
 use mpm_grid::{optional_chunks, BlockSparseGrid, Collider, GatherView, GridLayout, BLOCK};
-use mpm_kernels::{Kernel, Stencil};
-use mpm_math::{flush_subnormals, try_inverse, Matrix, Real, Vector};
+use mpm_kernels::{Kernel, Stencil, MAX_NODES_PER_AXIS};
+use mpm_math::{flush_subnormals, try_inverse, zero_matrix, zero_vector, Matrix, Real, Vector};
 use rayon::prelude::*;
 use std::marker::PhantomData;
 use std::time::Instant;
@@ -105,7 +105,7 @@ pub fn moment_matrix<T: Real, const D: usize, L: GridLayout>(
     st: &[Stencil<T, D>; 2],
     h: T,
 ) -> Matrix<T, D> {
-    let mut d = Matrix::<T, D>::zeros();
+    let mut d = zero_matrix::<T, D>();
     for s in st.iter().take(L::GRIDS) {
         let (m1, m2) = s.axis_moments(h);
         for a in 0..D {
@@ -253,7 +253,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
                     let c = scheme.p2g_affine(p.affine.get(i), d_inv.as_ref());
                     let model = &materials[p.material[i] as usize];
                     let scale = -p.volume[i] * dt;
-                    let zero = Matrix::<T, D>::zeros();
+                    let zero = zero_matrix::<T, D>();
                     let (elastic, viscous_part) = match (viscous, elastic_forces) {
                         (true, true) => model.kirchhoff_stress_parts(&p.state(i)),
                         (true, false) => (zero, model.kirchhoff_stress_parts(&p.state(i)).1),
@@ -265,7 +265,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
                     let mut mls_part = viscous_part * scale;
                     if mls {
                         mls_part += stress;
-                        stress = Matrix::<T, D>::zeros();
+                        stress = zero_matrix::<T, D>();
                     }
                     let mls_stress = d_inv.map(|di| mls_part * di);
                     let m = p.mass[i];
@@ -285,7 +285,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
                         };
                         if separate {
                             let tm = f.scatter_tables::<K>(&mv, &mc, &zero);
-                            let ti = f.scatter_tables::<K>(&Vector::zeros(), &ms, &stress);
+                            let ti = f.scatter_tables::<K>(&zero_vector::<T, D>(), &ms, &stress);
                             for q in 0..nodes {
                                 let j = Stencil::<T, D>::local_of::<K>(q);
                                 let (e, w) = f.excluded(&j);
@@ -395,7 +395,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
         let h = params.h;
         let inv_h = T::one() / h;
         let gw = T::lit(L::gather_weight());
-        let nodes = K::NODES_PER_AXIS.pow(D as u32);
+        let rows = K::NODES_PER_AXIS.pow(D as u32 - 1);
         let gather = |view: &GatherView<'_, T, D>, xp: &Vector<T, D>, needs: &Needs| {
             let st = stencils::<T, D, K, L>(xp, inv_h);
             let mut g = Gathered::zeros();
@@ -403,16 +403,24 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
                 let ix = view.indexer(k, &s.base, K::NODES_PER_AXIS);
                 let f = AxisFactors::new::<K>(s, h);
                 let mut sums = SliceSums::zeros();
-                for q in 0..nodes {
-                    let j = Stencil::<T, D>::local_of::<K>(q);
-                    let idx = ix.index(&j);
-                    let vi = view.velocity_at(idx);
-                    let (e, w) = f.excluded(&j);
-                    sums.add(&j, &e, &vi);
-                    if needs.old_velocity {
-                        g.velocity_change += (vi - view.velocity_old_at(idx)) * w;
+                let mut first = [zero_vector::<T, D>(); MAX_NODES_PER_AXIS];
+                for r in 0..rows {
+                    // Row `r`: the nodes (j₀, j₁ … j_{D−1}) for every j₀.
+                    let mut j = Stencil::<T, D>::local_of::<K>(r * K::NODES_PER_AXIS);
+                    let row = f.row(&j);
+                    let mut vs = [zero_vector::<T, D>(); MAX_NODES_PER_AXIS];
+                    for (j0, vi) in vs.iter_mut().enumerate().take(K::NODES_PER_AXIS) {
+                        j[0] = j0;
+                        let idx = ix.index(&j);
+                        *vi = view.velocity_at(idx);
+                        if needs.old_velocity {
+                            let w = f.w[0][j0] * row.1;
+                            g.velocity_change += (*vi - view.velocity_old_at(idx)) * w;
+                        }
                     }
+                    sums.add_row::<K>(&mut first, &f, &j, &row, &vs);
                 }
+                sums.set_first(first);
                 g.velocity += sums.velocity::<K>(&f);
                 if needs.affine_moment {
                     g.affine_moment += sums.affine_moment::<K>(&f);

@@ -4,7 +4,7 @@
 //! (the increments sum to `Δt Σ f_i = 0`).
 
 use crate::scheme::{Gathered, Needs, ParticleUpdate, TransferScheme};
-use mpm_math::{Matrix, Real, Vector};
+use mpm_math::{zero_matrix, Matrix, Real, Vector};
 
 /// FLIP/PIC blend with FLIP fraction `blend ∈ [0, 1]`.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -32,7 +32,7 @@ impl<T: Real, const D: usize> TransferScheme<T, D> for Flip<T> {
     }
     #[inline(always)]
     fn p2g_affine(&self, _: Option<&Matrix<T, D>>, _: Option<&Matrix<T, D>>) -> Matrix<T, D> {
-        Matrix::<T, D>::zeros()
+        zero_matrix::<T, D>()
     }
     #[inline(always)]
     fn update(&self, v: &Vector<T, D>, g: &Gathered<T, D>, _: bool) -> ParticleUpdate<T, D> {

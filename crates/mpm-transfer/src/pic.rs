@@ -3,7 +3,7 @@
 //! lost at every G2P) — which is why APIC exists.
 
 use crate::scheme::{Gathered, Needs, ParticleUpdate, TransferScheme};
-use mpm_math::{Matrix, Real, Vector};
+use mpm_math::{zero_matrix, Matrix, Real, Vector};
 
 /// Particle-in-cell transfer.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -27,7 +27,7 @@ impl<T: Real, const D: usize> TransferScheme<T, D> for Pic {
     }
     #[inline(always)]
     fn p2g_affine(&self, _: Option<&Matrix<T, D>>, _: Option<&Matrix<T, D>>) -> Matrix<T, D> {
-        Matrix::<T, D>::zeros()
+        zero_matrix::<T, D>()
     }
     #[inline(always)]
     fn update(&self, _: &Vector<T, D>, g: &Gathered<T, D>, _: bool) -> ParticleUpdate<T, D> {

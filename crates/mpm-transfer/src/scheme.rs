@@ -2,7 +2,7 @@
 //! velocity gradient that updates `F` are formed from the grid (G2P), and the affine
 //! velocity a particle carries back to the grid (P2G).
 
-use mpm_math::{Matrix, Real, Vector};
+use mpm_math::{zero_matrix, zero_vector, Matrix, Real, Vector};
 
 /// Grid quantities gathered at one particle (every sum already averaged over the
 /// grids of the layout with weight `1/GRIDS`). `r = x_i − x_p` at the pre-advection
@@ -26,11 +26,11 @@ impl<T: Real, const D: usize> Gathered<T, D> {
     #[inline(always)]
     pub fn zeros() -> Self {
         Gathered {
-            velocity: Vector::<T, D>::zeros(),
-            velocity_change: Vector::<T, D>::zeros(),
-            affine_moment: Matrix::<T, D>::zeros(),
-            velocity_gradient: Matrix::<T, D>::zeros(),
-            moment_matrix: Matrix::<T, D>::zeros(),
+            velocity: zero_vector::<T, D>(),
+            velocity_change: zero_vector::<T, D>(),
+            affine_moment: zero_matrix::<T, D>(),
+            velocity_gradient: zero_matrix::<T, D>(),
+            moment_matrix: zero_matrix::<T, D>(),
         }
     }
 }
@@ -99,7 +99,7 @@ pub(crate) fn affine_from_stored<T: Real, const D: usize>(
     match (stored, moment_inverse) {
         (Some(b), Some(d_inv)) => b * d_inv,
         (Some(c), None) => *c,
-        _ => Matrix::<T, D>::zeros(),
+        _ => zero_matrix::<T, D>(),
     }
 }
 

@@ -10,7 +10,7 @@
 //!   `A₀[j] = w₀[j] (c₀ + r₀[j] C₀) + g₀[j] S₀`, `Aₐ[j] = wₐ[j] rₐ[j] Cₐ + gₐ[j] Sₐ`
 //!   (`Cₐ`, `Sₐ` the columns), since `e₀ w₀ = w`, `eₐ wₐ rₐ = w rₐ` and
 //!   `eₐ gₐ = ∇w_a`.
-//! - G2P (`SliceSums`): with `Pₐ[j] = Σ_{nodes with jₐ = j} eₐ vᵢ`,
+//! - G2P (`SliceSums`, a row of nodes along axis 0 at a time): with `Pₐ[j] = Σ_{nodes with jₐ = j} eₐ vᵢ`,
 //!   `Σ w vᵢ = Σⱼ w₀[j] P₀[j]`, the column `a` of `Σ w vᵢ rᵀ` is `Σⱼ wₐ[j] rₐ[j] Pₐ[j]`
 //!   and that of `Σ vᵢ ∇wᵀ` is `Σⱼ gₐ[j] Pₐ[j]`.
 //!
@@ -18,7 +18,7 @@
 //! `tests/optimised_matches_reference.rs`).
 
 use mpm_kernels::{Kernel, Stencil, MAX_NODES_PER_AXIS};
-use mpm_math::{Matrix, Real, Vector};
+use mpm_math::{zero_matrix, zero_vector, Matrix, Real, Vector};
 
 /// Per-axis factors of one stencil: weights `w`, physical derivatives `g = N'/h` and
 /// offsets `r = (j − frac)·h`.
@@ -61,6 +61,27 @@ impl<T: Real, const D: usize> AxisFactors<T, D> {
         (e, prefix)
     }
 
+    /// The products over a stencil row (the nodes sharing `j₁ … j_{D−1}`, `j₀`
+    /// free): the row weight `W = Π_{b≥1} w_b[j_b]` and, for `a ≥ 1`, the row's
+    /// excluded products `Xₐ = Π_{b≥1, b≠a} w_b[j_b]`, so that a node's
+    /// `w = w₀[j₀] W`, `e₀ = W` and `eₐ = w₀[j₀] Xₐ` (`X₀` is unused). `j[0]` is
+    /// ignored.
+    #[inline(always)]
+    pub fn row(&self, j: &[usize; D]) -> ([T; D], T) {
+        let mut x = [T::one(); D];
+        let mut prefix = T::one();
+        for a in 1..D {
+            x[a] = prefix;
+            prefix *= self.w[a][j[a]];
+        }
+        let mut suffix = T::one();
+        for a in (1..D).rev() {
+            x[a] *= suffix;
+            suffix *= self.w[a][j[a]];
+        }
+        (x, prefix)
+    }
+
     /// The tables `Aₐ[j]` of `w (c₀ + C r) + S ∇w` (module docs).
     #[inline(always)]
     pub fn scatter_tables<K: Kernel>(
@@ -69,7 +90,7 @@ impl<T: Real, const D: usize> AxisFactors<T, D> {
         c: &Matrix<T, D>,
         s: &Matrix<T, D>,
     ) -> [[Vector<T, D>; MAX_NODES_PER_AXIS]; D] {
-        let mut t = [[Vector::<T, D>::zeros(); MAX_NODES_PER_AXIS]; D];
+        let mut t = [[zero_vector::<T, D>(); MAX_NODES_PER_AXIS]; D];
         for a in 0..D {
             let ca = c.column(a).into_owned();
             let sa = s.column(a).into_owned();
@@ -111,22 +132,45 @@ impl<T: Real, const D: usize> SliceSums<T, D> {
     #[inline(always)]
     pub fn zeros() -> Self {
         SliceSums {
-            p: [[Vector::<T, D>::zeros(); MAX_NODES_PER_AXIS]; D],
+            p: [[zero_vector::<T, D>(); MAX_NODES_PER_AXIS]; D],
         }
     }
 
-    /// Adds node `j`'s velocity with its excluded products `e`.
+    /// Adds one stencil row (`j₁ … j_{D−1}` of `j`, see [`AxisFactors::row`]): the
+    /// row weight `W` times each node's velocity to `P₀[j₀]` (`first`, kept by the
+    /// caller in a local array so that it can live in registers), and the row's
+    /// `R = Σ_{j₀} w₀[j₀] vᵢ` times `Xₐ` to `Pₐ[jₐ]`, `a ≥ 1`: two vector updates per
+    /// node instead of `D`.
     #[inline(always)]
-    pub fn add(&mut self, j: &[usize; D], e: &[T; D], v: &Vector<T, D>) {
-        for a in 0..D {
-            self.p[a][j[a]] += v * e[a];
+    pub fn add_row<K: Kernel>(
+        &mut self,
+        first: &mut [Vector<T, D>; MAX_NODES_PER_AXIS],
+        f: &AxisFactors<T, D>,
+        j: &[usize; D],
+        row: &([T; D], T),
+        velocities: &[Vector<T, D>; MAX_NODES_PER_AXIS],
+    ) {
+        let (x, w_row) = row;
+        let mut r = zero_vector::<T, D>();
+        for j0 in 0..K::NODES_PER_AXIS {
+            first[j0] += velocities[j0] * *w_row;
+            r += velocities[j0] * f.w[0][j0];
         }
+        for a in 1..D {
+            self.p[a][j[a]] += r * x[a];
+        }
+    }
+
+    /// Sets `P₀` from the rows' accumulated first-axis sums.
+    #[inline(always)]
+    pub fn set_first(&mut self, first: [Vector<T, D>; MAX_NODES_PER_AXIS]) {
+        self.p[0] = first;
     }
 
     /// `Σ w vᵢ`.
     #[inline(always)]
     pub fn velocity<K: Kernel>(&self, f: &AxisFactors<T, D>) -> Vector<T, D> {
-        let mut v = Vector::<T, D>::zeros();
+        let mut v = zero_vector::<T, D>();
         for j in 0..K::NODES_PER_AXIS {
             v += self.p[0][j] * f.w[0][j];
         }
@@ -136,9 +180,9 @@ impl<T: Real, const D: usize> SliceSums<T, D> {
     /// `Σ w vᵢ rᵀ`.
     #[inline(always)]
     pub fn affine_moment<K: Kernel>(&self, f: &AxisFactors<T, D>) -> Matrix<T, D> {
-        let mut b = Matrix::<T, D>::zeros();
+        let mut b = zero_matrix::<T, D>();
         for a in 0..D {
-            let mut col = Vector::<T, D>::zeros();
+            let mut col = zero_vector::<T, D>();
             for j in 0..K::NODES_PER_AXIS {
                 col += self.p[a][j] * (f.w[a][j] * f.r[a][j]);
             }
@@ -150,9 +194,9 @@ impl<T: Real, const D: usize> SliceSums<T, D> {
     /// `Σ vᵢ ∇wᵀ`.
     #[inline(always)]
     pub fn velocity_gradient<K: Kernel>(&self, f: &AxisFactors<T, D>) -> Matrix<T, D> {
-        let mut l = Matrix::<T, D>::zeros();
+        let mut l = zero_matrix::<T, D>();
         for a in 0..D {
-            let mut col = Vector::<T, D>::zeros();
+            let mut col = zero_vector::<T, D>();
             for j in 0..K::NODES_PER_AXIS {
                 col += self.p[a][j] * f.g[a][j];
             }
