@@ -5,7 +5,7 @@
 use crate::diagnostics::Totals;
 use crate::particles::Particles;
 use crate::scheme::{Gathered, Needs, TransferScheme};
-use crate::separable::{node_vector, AxisFactors, SliceSums};
+use crate::separable::{row_shared, AxisFactors, SliceSums};
 use crate::{advect_checked, StepError};
 use mpm_constitutive::{Material, StateMut};
 use mpm_grid::{optional_chunks, BlockSparseGrid, Collider, GatherView, GridLayout, BLOCK};
@@ -234,7 +234,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
         let viscous = particles.needs.velocity_gradient && !gradient_form;
         let need_moment = (affine || mls || viscous) && !gradient_form;
         let separate = scheme.needs(gradient_form).old_velocity;
-        let nodes = K::NODES_PER_AXIS.pow(D as u32);
+        let rows = K::NODES_PER_AXIS.pow(D as u32 - 1);
         let p = particles;
         self.grid.scatter_local(
             Self::buffer_extent(),
@@ -283,22 +283,36 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
                             }
                             idx
                         };
-                        if separate {
-                            let tm = f.scatter_tables::<K>(&mv, &mc, &zero);
+                        // One stencil row (j₀ free) at a time (`row_shared`); FLIP keeps
+                        // the impulse apart in a second table.
+                        let (momentum, impulse) = if separate {
                             let ti = f.scatter_tables::<K>(&zero_vector::<T, D>(), &ms, &stress);
-                            for q in 0..nodes {
-                                let j = Stencil::<T, D>::local_of::<K>(q);
-                                let (e, w) = f.excluded(&j);
-                                let momentum = node_vector(&tm, &e, &j);
-                                let impulse = node_vector(&ti, &e, &j);
-                                buf.add_at(index(&j), w * m, &momentum, &impulse);
-                            }
+                            (f.scatter_tables::<K>(&mv, &mc, &zero), Some(ti))
                         } else {
-                            let t = f.scatter_tables::<K>(&mv, &(mc + ms), &stress);
-                            for q in 0..nodes {
-                                let j = Stencil::<T, D>::local_of::<K>(q);
-                                let (e, w) = f.excluded(&j);
-                                buf.add_folded_at(index(&j), w * m, &node_vector(&t, &e, &j));
+                            (f.scatter_tables::<K>(&mv, &(mc + ms), &stress), None)
+                        };
+                        for r in 0..rows {
+                            let mut j = Stencil::<T, D>::local_of::<K>(r * K::NODES_PER_AXIS);
+                            let row = f.row(&j);
+                            let (w_row, m_row) = (row.1, row.1 * m);
+                            let shared = row_shared(&momentum, &row, &j);
+                            let shared_impulse = impulse.map(|t| row_shared(&t, &row, &j));
+                            for j0 in 0..K::NODES_PER_AXIS {
+                                j[0] = j0;
+                                let w0 = f.w[0][j0];
+                                let node_momentum = momentum[0][j0] * w_row + shared * w0;
+                                match (&impulse, &shared_impulse) {
+                                    (Some(ti), Some(si)) => {
+                                        let node_impulse = ti[0][j0] * w_row + si * w0;
+                                        buf.add_at(
+                                            index(&j),
+                                            w0 * m_row,
+                                            &node_momentum,
+                                            &node_impulse,
+                                        );
+                                    }
+                                    _ => buf.add_folded_at(index(&j), w0 * m_row, &node_momentum),
+                                }
                             }
                         }
                     }

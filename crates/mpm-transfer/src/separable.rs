@@ -5,7 +5,7 @@
 //! term by the one axis it does not share turns the per-node work from `O(D²)`
 //! (building `∇w`, `r`, then two matrix–vector products) into `O(D)`:
 //!
-//! - P2G (`node_vector`): `w (c₀ + C r) + S ∇w = Σₐ eₐ Aₐ[jₐ]` with the excluded
+//! - P2G (`row_shared`, a row of nodes along axis 0 at a time): `w (c₀ + C r) + S ∇w = Σₐ eₐ Aₐ[jₐ]` with the excluded
 //!   products `eₐ = Π_{b≠a} w_b[j_b]` and the per-axis tables
 //!   `A₀[j] = w₀[j] (c₀ + r₀[j] C₀) + g₀[j] S₀`, `Aₐ[j] = wₐ[j] rₐ[j] Cₐ + gₐ[j] Sₐ`
 //!   (`Cₐ`, `Sₐ` the columns), since `e₀ w₀ = w`, `eₐ wₐ rₐ = w rₐ` and
@@ -107,19 +107,21 @@ impl<T: Real, const D: usize> AxisFactors<T, D> {
     }
 }
 
-/// `Σₐ eₐ Aₐ[jₐ]`: node `j`'s share of the tables from
-/// [`AxisFactors::scatter_tables`].
+/// `Σₐ eₐ Aₐ[jₐ]` for a whole stencil row (`j₁ … j_{D−1}` of `j`, see
+/// [`AxisFactors::row`]): node `(j₀, …)` receives `W A₀[j₀] + w₀[j₀] U` with the
+/// row's shared part `U = Σ_{a≥1} Xₐ Aₐ[jₐ]`, returned here: two vector updates per
+/// node instead of `D`.
 #[inline(always)]
-pub(crate) fn node_vector<T: Real, const D: usize>(
+pub(crate) fn row_shared<T: Real, const D: usize>(
     tables: &[[Vector<T, D>; MAX_NODES_PER_AXIS]; D],
-    e: &[T; D],
+    row: &([T; D], T),
     j: &[usize; D],
 ) -> Vector<T, D> {
-    let mut v = tables[0][j[0]] * e[0];
+    let mut u = zero_vector::<T, D>();
     for a in 1..D {
-        v += tables[a][j[a]] * e[a];
+        u += tables[a][j[a]] * row.0[a];
     }
-    v
+    u
 }
 
 /// The slice sums `Pₐ[j]` of a gather (module docs).
