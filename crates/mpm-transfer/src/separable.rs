@@ -46,19 +46,7 @@ impl<T: Real, const D: usize> AxisFactors<T, D> {
     /// The excluded products `eₐ = Π_{b≠a} w_b[j_b]` and the weight `w` of node `j`.
     #[inline(always)]
     pub fn excluded(&self, j: &[usize; D]) -> ([T; D], T) {
-        // Prefix and suffix products: no division (a 1-D weight may be zero).
-        let mut e = [T::one(); D];
-        let mut prefix = T::one();
-        for a in 0..D {
-            e[a] = prefix;
-            prefix *= self.w[a][j[a]];
-        }
-        let mut suffix = T::one();
-        for a in (0..D).rev() {
-            e[a] *= suffix;
-            suffix *= self.w[a][j[a]];
-        }
-        (e, prefix)
+        self.excluded_from(j, 0)
     }
 
     /// The products over a stencil row (the nodes sharing `j₁ … j_{D−1}`, `j₀`
@@ -68,18 +56,26 @@ impl<T: Real, const D: usize> AxisFactors<T, D> {
     /// ignored.
     #[inline(always)]
     pub fn row(&self, j: &[usize; D]) -> ([T; D], T) {
-        let mut x = [T::one(); D];
+        self.excluded_from(j, 1)
+    }
+
+    /// Over the axes `first..D`: `Π_{b≠a} w_b[j_b]` for each such `a` (1 for the
+    /// others) and the product of all of them, by prefix and suffix products (no
+    /// division: a 1-D weight may be zero).
+    #[inline(always)]
+    fn excluded_from(&self, j: &[usize; D], first: usize) -> ([T; D], T) {
+        let mut e = [T::one(); D];
         let mut prefix = T::one();
-        for a in 1..D {
-            x[a] = prefix;
+        for a in first..D {
+            e[a] = prefix;
             prefix *= self.w[a][j[a]];
         }
         let mut suffix = T::one();
-        for a in (1..D).rev() {
-            x[a] *= suffix;
+        for a in (first..D).rev() {
+            e[a] *= suffix;
             suffix *= self.w[a][j[a]];
         }
-        (x, prefix)
+        (e, prefix)
     }
 
     /// The tables `Aₐ[j]` of `w (c₀ + C r) + S ∇w` (module docs).
