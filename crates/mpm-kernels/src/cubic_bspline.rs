@@ -12,6 +12,7 @@ impl Kernel for CubicBSpline {
     const NODES_PER_AXIS: usize = 4;
     const SUPPORT_RADIUS: f64 = 2.0;
     const LAYOUT: LayoutKind = LayoutKind::Single;
+    const CONSTANT_SECOND_MOMENT: Option<f64> = Some(1.0 / 3.0);
 
     #[inline(always)]
     fn profile<T: Real>(u: T) -> T {

@@ -52,6 +52,11 @@ pub trait Kernel: Copy + Default + Send + Sync + std::fmt::Debug + 'static {
     const SUPPORT_RADIUS: f64;
     /// The layout this kernel needs for linear reproduction.
     const LAYOUT: LayoutKind;
+    /// `Σⱼ N(u_j) u_j²` (cells²) when it is the same at every particle position and
+    /// the first moment `Σⱼ N(u_j) u_j` vanishes everywhere (B-splines of degree ≥ 2),
+    /// so that on one grid the APIC/MLS moment matrix is `D_p = c h² I` for every
+    /// particle; `None` when it varies (linear, compact).
+    const CONSTANT_SECOND_MOMENT: Option<f64> = None;
 
     /// The profile `N(u)`.
     fn profile<T: Real>(u: T) -> T;

@@ -12,6 +12,7 @@ impl Kernel for QuadraticBSpline {
     const NODES_PER_AXIS: usize = 3;
     const SUPPORT_RADIUS: f64 = 1.5;
     const LAYOUT: LayoutKind = LayoutKind::Single;
+    const CONSTANT_SECOND_MOMENT: Option<f64> = Some(0.25);
 
     #[inline(always)]
     fn profile<T: Real>(u: T) -> T {

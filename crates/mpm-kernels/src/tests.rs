@@ -13,6 +13,9 @@ fn samples() -> Vec<f64> {
 fn partition_of_unity<K: Kernel>() {
     for xg in samples() {
         let k = K::weights_1d(xg);
+        // Binning uses `base_node` alone; it must name the stencil's first node.
+        assert_eq!(K::base_node(xg), k.base, "{} at {xg}", K::NAME);
+        assert_eq!(K::base_node(xg as f32), K::weights_1d(xg as f32).base);
         let sum: f64 = k.w.iter().sum();
         let dsum: f64 = k.dw.iter().sum();
         // Round-off of a handful of terms of size ≤ 1.
@@ -42,6 +45,36 @@ fn partition_of_unity_all_kernels() {
     partition_of_unity::<QuadraticBSpline>();
     partition_of_unity::<CubicBSpline>();
     partition_of_unity::<Compact>();
+}
+
+/// `CONSTANT_SECOND_MOMENT`, where a kernel declares one, is the second moment at
+/// every position, and the first moment vanishes there (round-off of ≤ 4 terms).
+fn declared_moments<K: Kernel>() {
+    let Some(c) = K::CONSTANT_SECOND_MOMENT else {
+        return;
+    };
+    for xg in samples() {
+        let k = K::weights_1d(xg);
+        let u = |j: usize| (k.base + j as i32) as f64 - xg;
+        let m1: f64 = (0..K::NODES_PER_AXIS).map(|j| k.w[j] * u(j)).sum();
+        let m2: f64 = (0..K::NODES_PER_AXIS).map(|j| k.w[j] * u(j) * u(j)).sum();
+        assert!(m1.abs() < 1e-14, "{} at {xg}: first moment {m1}", K::NAME);
+        assert!(
+            (m2 - c).abs() < 1e-14,
+            "{} at {xg}: second moment {m2} ≠ {c}",
+            K::NAME
+        );
+    }
+}
+
+#[test]
+fn declared_second_moments_hold_everywhere() {
+    declared_moments::<QuadraticBSpline>();
+    declared_moments::<CubicBSpline>();
+    assert!(Linear::CONSTANT_SECOND_MOMENT.is_none() && Compact::CONSTANT_SECOND_MOMENT.is_none());
+    // The linear kernel's second moment f(1 − f) varies: it must not declare one.
+    let m2 = |f: f64| (1.0 - f) * f * f + f * (1.0 - f) * (1.0 - f);
+    assert!((m2(0.5) - m2(0.1)).abs() > 0.1);
 }
 
 #[test]

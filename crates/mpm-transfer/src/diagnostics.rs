@@ -66,7 +66,7 @@ pub fn particle_totals<T: Real, const D: usize, K: Kernel, L: GridLayout>(
             // Stored B (or C in gradient form, whose moment is C·D at this position).
             let b = if gradient_form {
                 let st = stencils::<T, D, K, L>(&particles.x[p], inv_h);
-                particles.affine[p] * moment_matrix::<T, D, L>(&st, h)
+                particles.affine[p] * moment_matrix::<T, D, K, L>(&st, h)
             } else {
                 particles.affine[p]
             };

@@ -223,7 +223,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
         }
         let halo = self.halo_request(dec);
         let order = self.grid.bin_with_halo(&self.cells, &halo);
-        particles.reorder(&order);
+        particles.reorder_with(&order, &mut self.reorder_scratch);
         let t1 = Instant::now();
         self.scatter_to_home_buffers(particles, materials, scheme, params.dt, params.h, true);
         self.exchange_halo_buffers(dec);

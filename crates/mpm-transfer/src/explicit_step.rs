@@ -3,9 +3,9 @@
 //! → grid update (gravity, colliders) → G2P (velocity, affine matrix, `F`, position).
 
 use crate::diagnostics::Totals;
-use crate::particles::Particles;
+use crate::particles::{Particles, ReorderScratch};
 use crate::scheme::{Gathered, Needs, TransferScheme};
-use crate::separable::{row_shared, AxisFactors, SliceSums};
+use crate::separable::{row_shared, stencil_rows, AxisFactors, SliceSums, MAX_ROWS};
 use crate::{advect_checked, StepError};
 use mpm_constitutive::{Material, StateMut};
 use mpm_grid::{optional_chunks, BlockSparseGrid, Collider, GatherView, GridLayout, BLOCK};
@@ -65,6 +65,8 @@ pub struct ExplicitStepper<T: Real, const D: usize, K: Kernel, L: GridLayout> {
     /// Accumulated phase times.
     pub times: PhaseTimes,
     pub(crate) cells: Vec<[i32; D]>,
+    /// Spare particle arrays of the sort (no allocation per step).
+    pub(crate) reorder_scratch: ReorderScratch<T, D>,
     _stencil: PhantomData<(K, L)>,
 }
 
@@ -99,12 +101,16 @@ pub fn stencils<T: Real, const D: usize, K: Kernel, L: GridLayout>(
 }
 
 /// `D_p = (1/GRIDS) Σ_k Σ_i w r rᵀ` from a particle's stencils, through the per-axis
-/// moments of the tensor-product weights ([`Stencil::axis_moments`]).
+/// moments of the tensor-product weights ([`Stencil::axis_moments`]); on one grid of
+/// a kernel with a [`Kernel::CONSTANT_SECOND_MOMENT`] `c`, the constant `c h² I`.
 #[inline(always)]
-pub fn moment_matrix<T: Real, const D: usize, L: GridLayout>(
+pub fn moment_matrix<T: Real, const D: usize, K: Kernel, L: GridLayout>(
     st: &[Stencil<T, D>; 2],
     h: T,
 ) -> Matrix<T, D> {
+    if let (1, Some(c)) = (L::GRIDS, K::CONSTANT_SECOND_MOMENT) {
+        return Matrix::<T, D>::identity() * (T::lit(c) * h * h);
+    }
     let mut d = zero_matrix::<T, D>();
     for s in st.iter().take(L::GRIDS) {
         let (m1, m2) = s.axis_moments(h);
@@ -117,6 +123,19 @@ pub fn moment_matrix<T: Real, const D: usize, L: GridLayout>(
     d * T::lit(L::gather_weight())
 }
 
+/// `D_p⁻¹` ([`moment_matrix`]; `None` when singular), without a general inverse
+/// where `D_p = c h² I`.
+#[inline(always)]
+pub fn moment_inverse<T: Real, const D: usize, K: Kernel, L: GridLayout>(
+    st: &[Stencil<T, D>; 2],
+    h: T,
+) -> Option<Matrix<T, D>> {
+    if let (1, Some(c)) = (L::GRIDS, K::CONSTANT_SECOND_MOMENT) {
+        return Some(Matrix::<T, D>::identity() * (T::one() / (T::lit(c) * h * h)));
+    }
+    try_inverse(&moment_matrix::<T, D, K, L>(st, h))
+}
+
 impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K, L> {
     /// A stepper with an empty grid.
     pub fn new() -> Self {
@@ -124,6 +143,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
             grid: BlockSparseGrid::new(L::GRIDS),
             times: PhaseTimes::default(),
             cells: Vec::new(),
+            reorder_scratch: ReorderScratch::default(),
             _stencil: PhantomData,
         }
     }
@@ -163,7 +183,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
     pub fn bin(&mut self, particles: &mut Particles<T, D>, h: T) {
         self.home_cells(particles, h);
         let order = self.grid.bin(&self.cells);
-        particles.reorder(&order);
+        particles.reorder_with(&order, &mut self.reorder_scratch);
     }
 
     /// Fills `self.cells` with each particle's first stencil node on grid 0.
@@ -177,7 +197,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
             .map(|x| {
                 let mut c = [0i32; D];
                 for a in 0..D {
-                    c[a] = K::weights_1d(x[a] * inv_h - off).base;
+                    c[a] = K::base_node(x[a] * inv_h - off);
                 }
                 c
             })
@@ -234,7 +254,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
         let viscous = particles.needs.velocity_gradient && !gradient_form;
         let need_moment = (affine || mls || viscous) && !gradient_form;
         let separate = scheme.needs(gradient_form).old_velocity;
-        let rows = K::NODES_PER_AXIS.pow(D as u32 - 1);
+        let rows = stencil_rows::<K, D>();
         let p = particles;
         self.grid.scatter_local(
             Self::buffer_extent(),
@@ -246,7 +266,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
                     let x = p.x[i];
                     let st = stencils::<T, D, K, L>(&x, inv_h);
                     let d_inv = if need_moment {
-                        try_inverse(&moment_matrix::<T, D, L>(&st, h))
+                        moment_inverse::<T, D, K, L>(&st, h)
                     } else {
                         None
                     };
@@ -351,7 +371,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
                 let x = particles.x[p];
                 let st = stencils::<T, D, K, L>(&x, inv_h);
                 let d_inv = if mls {
-                    try_inverse(&moment_matrix::<T, D, L>(&st, h))
+                    moment_inverse::<T, D, K, L>(&st, h)
                 } else {
                     None
                 };
@@ -409,32 +429,32 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
         let h = params.h;
         let inv_h = T::one() / h;
         let gw = T::lit(L::gather_weight());
-        let rows = K::NODES_PER_AXIS.pow(D as u32 - 1);
+        let rows = stencil_rows::<K, D>();
         let gather = |view: &GatherView<'_, T, D>, xp: &Vector<T, D>, needs: &Needs| {
             let st = stencils::<T, D, K, L>(xp, inv_h);
             let mut g = Gathered::zeros();
             for (k, s) in st.iter().enumerate().take(L::GRIDS) {
                 let ix = view.indexer(k, &s.base, K::NODES_PER_AXIS);
                 let f = AxisFactors::new::<K>(s, h);
-                let mut sums = SliceSums::zeros();
                 let mut first = [zero_vector::<T, D>(); MAX_NODES_PER_AXIS];
-                for r in 0..rows {
+                let mut row_sums = [zero_vector::<T, D>(); MAX_ROWS];
+                for (r, rs) in row_sums.iter_mut().enumerate().take(rows) {
                     // Row `r`: the nodes (j₀, j₁ … j_{D−1}) for every j₀.
                     let mut j = Stencil::<T, D>::local_of::<K>(r * K::NODES_PER_AXIS);
-                    let row = f.row(&j);
+                    let w_row = f.row(&j).1;
                     let mut vs = [zero_vector::<T, D>(); MAX_NODES_PER_AXIS];
                     for (j0, vi) in vs.iter_mut().enumerate().take(K::NODES_PER_AXIS) {
                         j[0] = j0;
                         let idx = ix.index(&j);
                         *vi = view.velocity_at(idx);
                         if needs.old_velocity {
-                            let w = f.w[0][j0] * row.1;
+                            let w = f.w[0][j0] * w_row;
                             g.velocity_change += (*vi - view.velocity_old_at(idx)) * w;
                         }
                     }
-                    sums.add_row::<K>(&mut first, &f, &j, &row, &vs);
+                    *rs = SliceSums::add_row::<K>(&mut first, &f, w_row, &vs);
                 }
-                sums.set_first(first);
+                let sums = SliceSums::from_rows::<K>(first, &f, &row_sums);
                 g.velocity += sums.velocity::<K>(&f);
                 if needs.affine_moment {
                     g.affine_moment += sums.affine_moment::<K>(&f);
@@ -448,7 +468,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
             g.affine_moment *= gw;
             g.velocity_gradient *= gw;
             if needs.moment_matrix {
-                g.moment_matrix = moment_matrix::<T, D, L>(&st, h);
+                g.moment_matrix = moment_matrix::<T, D, K, L>(&st, h);
             }
             g
         };

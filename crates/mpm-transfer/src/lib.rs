@@ -28,7 +28,7 @@ pub use flip::Flip;
 pub use mls::Mls;
 use mpm_constitutive::StateFault;
 use mpm_math::{Real, Vector};
-pub use particles::Particles;
+pub use particles::{Particles, ReorderScratch};
 pub use pic::Pic;
 pub use scheme::{Transfer, TransferScheme};
 pub use timestep::{cfl_time_step, max_speed};

@@ -120,6 +120,17 @@ pub(crate) fn row_shared<T: Real, const D: usize>(
     u
 }
 
+/// Stencil rows (nodes sharing `j₁ … j_{D−1}`) a 2-D or 3-D stencil can have.
+pub(crate) const MAX_ROWS: usize = MAX_NODES_PER_AXIS * MAX_NODES_PER_AXIS;
+
+/// Rows of kernel `K`'s stencil in `D` dimensions (`D ≤ 3`).
+#[inline(always)]
+pub(crate) const fn stencil_rows<K: Kernel, const D: usize>() -> usize {
+    let n = K::NODES_PER_AXIS.pow(D as u32 - 1);
+    assert!(n <= MAX_ROWS, "at most 3 dimensions");
+    n
+}
+
 /// The slice sums `Pₐ[j]` of a gather (module docs).
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct SliceSums<T: Real, const D: usize> {
@@ -134,35 +145,46 @@ impl<T: Real, const D: usize> SliceSums<T, D> {
         }
     }
 
-    /// Adds one stencil row (`j₁ … j_{D−1}` of `j`, see [`AxisFactors::row`]): the
+    /// Adds one stencil row (see [`AxisFactors::row`]) to the first-axis sums: the
     /// row weight `W` times each node's velocity to `P₀[j₀]` (`first`, kept by the
-    /// caller in a local array so that it can live in registers), and the row's
-    /// `R = Σ_{j₀} w₀[j₀] vᵢ` times `Xₐ` to `Pₐ[jₐ]`, `a ≥ 1`: two vector updates per
-    /// node instead of `D`.
+    /// caller in a local array so that it can live in registers). Returns the row's
+    /// `R = Σ_{j₀} w₀[j₀] vᵢ`, which [`Self::from_rows`] spreads over the other axes
+    /// once every row is gathered (kept out of the gather loop: its updates
+    /// `Pₐ[jₐ] += Xₐ R` go to a position that depends on the row).
     #[inline(always)]
     pub fn add_row<K: Kernel>(
-        &mut self,
         first: &mut [Vector<T, D>; MAX_NODES_PER_AXIS],
         f: &AxisFactors<T, D>,
-        j: &[usize; D],
-        row: &([T; D], T),
+        w_row: T,
         velocities: &[Vector<T, D>; MAX_NODES_PER_AXIS],
-    ) {
-        let (x, w_row) = row;
+    ) -> Vector<T, D> {
         let mut r = zero_vector::<T, D>();
         for j0 in 0..K::NODES_PER_AXIS {
-            first[j0] += velocities[j0] * *w_row;
+            first[j0] += velocities[j0] * w_row;
             r += velocities[j0] * f.w[0][j0];
         }
-        for a in 1..D {
-            self.p[a][j[a]] += r * x[a];
-        }
+        r
     }
 
-    /// Sets `P₀` from the rows' accumulated first-axis sums.
+    /// The slice sums from the rows' first-axis sums `first` and row sums `R`
+    /// ([`Self::add_row`], rows in [`Stencil::local_of`] order): `P₀ = first`,
+    /// `Pₐ[jₐ] = Σ_rows Xₐ R` for `a ≥ 1`, two vector updates per node in all.
     #[inline(always)]
-    pub fn set_first(&mut self, first: [Vector<T, D>; MAX_NODES_PER_AXIS]) {
-        self.p[0] = first;
+    pub fn from_rows<K: Kernel>(
+        first: [Vector<T, D>; MAX_NODES_PER_AXIS],
+        f: &AxisFactors<T, D>,
+        row_sums: &[Vector<T, D>; MAX_ROWS],
+    ) -> Self {
+        let mut sums = Self::zeros();
+        sums.p[0] = first;
+        for (r, rs) in row_sums.iter().enumerate().take(stencil_rows::<K, D>()) {
+            let j = Stencil::<T, D>::local_of::<K>(r * K::NODES_PER_AXIS);
+            let (x, _) = f.row(&j);
+            for a in 1..D {
+                sums.p[a][j[a]] += rs * x[a];
+            }
+        }
+        sums
     }
 
     /// `Σ w vᵢ`.
