@@ -27,8 +27,7 @@ pub struct LocalBuffer<'a, T: Real, const D: usize> {
     origin: [i32; D],
     ext: usize,
     per_grid: usize,
-    mass: &'a mut [T],
-    momentum: &'a mut [Vector<T, D>],
+    nodes: &'a mut [NodeRecord<T>],
     impulse: &'a mut [Vector<T, D>],
     position: &'a mut [Vector<T, D>],
     neighbors: &'a [u32; 8],
@@ -69,13 +68,7 @@ impl<T: Real, const D: usize> LocalBuffer<'_, T, D> {
         impulse: &Vector<T, D>,
     ) {
         let i = self.local_index(grid, node);
-        self.mass[i] += mass;
-        if self.impulse.is_empty() {
-            self.momentum[i] += momentum + impulse;
-        } else {
-            self.momentum[i] += momentum;
-            self.impulse[i] += impulse;
-        }
+        self.add_at(i, mass, momentum, impulse);
     }
 }
 
@@ -100,11 +93,10 @@ impl<T: Real, const D: usize> LocalBuffer<'_, T, D> {
     /// [`Self::add`] at a flat index from [`Self::index_of`] and [`Self::strides`].
     #[inline(always)]
     pub fn add_at(&mut self, i: usize, mass: T, momentum: &Vector<T, D>, impulse: &Vector<T, D>) {
-        self.mass[i] += mass;
         if self.impulse.is_empty() {
-            self.momentum[i] += momentum + impulse;
+            add_record(&mut self.nodes[i], mass, &(momentum + impulse));
         } else {
-            self.momentum[i] += momentum;
+            add_record(&mut self.nodes[i], mass, momentum);
             self.impulse[i] += impulse;
         }
     }
@@ -117,8 +109,7 @@ impl<T: Real, const D: usize> LocalBuffer<'_, T, D> {
             self.impulse.is_empty(),
             "this scatter keeps the impulse apart"
         );
-        self.mass[i] += mass;
-        self.momentum[i] += momentum;
+        add_record(&mut self.nodes[i], mass, momentum);
     }
 
     /// Adds a mass-weighted position `m w x_p` (for the current nodal positions
@@ -131,6 +122,31 @@ impl<T: Real, const D: usize> LocalBuffer<'_, T, D> {
             self.position[i] += weighted_position;
         }
     }
+}
+
+/// A scatter buffer's node: momentum in entries `0..D`, mass in entry 3 (`D ≤ 3`),
+/// so that one node's update is one 4-wide add instead of a scalar and a `D`-vector
+/// read-modify-write.
+pub(crate) type NodeRecord<T> = [T; 4];
+
+/// Adds `momentum` and `mass` to a node record ([`NodeRecord`]).
+#[inline(always)]
+fn add_record<T: Real, const D: usize>(rec: &mut NodeRecord<T>, mass: T, momentum: &Vector<T, D>) {
+    const { assert!(D <= 3, "node records hold at most 3 momentum components") };
+    let mut add = [T::zero(); 4];
+    for a in 0..D {
+        add[a] = momentum[a];
+    }
+    add[3] = mass;
+    for (r, x) in rec.iter_mut().zip(add) {
+        *r += x;
+    }
+}
+
+/// The momentum of a node record.
+#[inline(always)]
+fn record_momentum<T: Real, const D: usize>(rec: &NodeRecord<T>) -> Vector<T, D> {
+    Vector::<T, D>::from_fn(|a, _| rec[a])
 }
 
 /// Node index of the `l`-th node (x fastest) of the block with block coordinates
@@ -305,8 +321,7 @@ pub struct BlockSparseGrid<T: Real, const D: usize> {
     /// Nodal velocity before forces (kept only when a FLIP blend needs it).
     pub velocity_old: Vec<Vector<T, D>>,
     scratch_ext: usize,
-    scratch_mass: Vec<T>,
-    scratch_momentum: Vec<Vector<T, D>>,
+    scratch_nodes: Vec<NodeRecord<T>>,
     scratch_impulse: Vec<Vector<T, D>>,
     scratch_position: Vec<Vector<T, D>>,
     keys: Vec<u32>,
@@ -387,9 +402,8 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
         self.mass.capacity() * size_of::<T>()
             + (self.momentum.capacity() + self.velocity.capacity() + self.velocity_old.capacity())
                 * v
-            + self.scratch_mass.capacity() * size_of::<T>()
-            + (self.scratch_momentum.capacity()
-                + self.scratch_impulse.capacity()
+            + self.scratch_nodes.capacity() * size_of::<NodeRecord<T>>()
+            + (self.scratch_impulse.capacity()
                 + self.scratch_position.capacity()
                 + self.position_moment.capacity()
                 + self.impulse.capacity())
@@ -567,8 +581,7 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
         let n_home = self.home_blocks.len();
         let zero = Vector::<T, D>::zeros();
         self.scratch_ext = ext;
-        refill(&mut self.scratch_mass, n_home * per_home, T::zero());
-        refill(&mut self.scratch_momentum, n_home * per_home, zero);
+        refill(&mut self.scratch_nodes, n_home * per_home, [T::zero(); 4]);
         refill(
             &mut self.scratch_impulse,
             if separate_impulse {
@@ -588,20 +601,18 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
         let home_neighbors = &self.home_neighbors;
         let grid_stride = self.blocks.len() * self.nodes_per_block;
         (
-            self.scratch_mass.par_chunks_mut(per_home),
-            self.scratch_momentum.par_chunks_mut(per_home),
+            self.scratch_nodes.par_chunks_mut(per_home),
             optional_chunks(&mut self.scratch_impulse, per_home, n_home).into_par_iter(),
             optional_chunks(&mut self.scratch_position, per_home, n_home).into_par_iter(),
         )
             .into_par_iter()
             .enumerate()
-            .for_each(|(h, (m, p, imp, pos))| {
+            .for_each(|(h, (nodes, imp, pos))| {
                 let mut buf = LocalBuffer {
                     origin: home_blocks[h].map(|v| v * BLOCK),
                     ext,
                     per_grid,
-                    mass: m,
-                    momentum: p,
+                    nodes,
                     impulse: imp,
                     position: pos,
                     neighbors: &home_neighbors[h],
@@ -661,13 +672,13 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
         let base = h * self.scratch_ext.pow(D as u32) * self.grids;
         out.extend(
             self.plane_indices(planes.clone())
-                .map(|i| self.scratch_mass[base + i].to_f64()),
+                .map(|i| self.scratch_nodes[base + i][3].to_f64()),
         );
-        for v in [
-            &self.scratch_momentum,
-            &self.scratch_impulse,
-            &self.scratch_position,
-        ] {
+        for i in self.plane_indices(planes.clone()) {
+            let rec = &self.scratch_nodes[base + i];
+            out.extend(rec[..D].iter().map(|c| c.to_f64()));
+        }
+        for v in [&self.scratch_impulse, &self.scratch_position] {
             if !v.is_empty() {
                 for i in self.plane_indices(planes.clone()) {
                     out.extend(v[base + i].iter().map(|c| c.to_f64()));
@@ -689,13 +700,16 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
         let idx: Vec<usize> = self.plane_indices(planes).map(|i| base + i).collect();
         let (mass, mut rest) = data.split_at(idx.len());
         for (&i, x) in idx.iter().zip(mass) {
-            self.scratch_mass[i] = T::lit(*x);
+            self.scratch_nodes[i][3] = T::lit(*x);
         }
-        for v in [
-            &mut self.scratch_momentum,
-            &mut self.scratch_impulse,
-            &mut self.scratch_position,
-        ] {
+        let (momentum, tail) = rest.split_at(idx.len() * D);
+        for (&i, c) in idx.iter().zip(momentum.chunks_exact(D)) {
+            for a in 0..D {
+                self.scratch_nodes[i][a] = T::lit(c[a]);
+            }
+        }
+        rest = tail;
+        for v in [&mut self.scratch_impulse, &mut self.scratch_position] {
             if !v.is_empty() {
                 let (part, tail) = rest.split_at(idx.len() * D);
                 for (&i, c) in idx.iter().zip(part.chunks_exact(D)) {
@@ -728,9 +742,8 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
         let per_home = per_grid * self.grids;
         let n_blocks = self.blocks.len();
         let n_chunks = self.grids * n_blocks;
-        let (sm, sp, si, sx) = (
-            &self.scratch_mass,
-            &self.scratch_momentum,
+        let (sn, si, sx) = (
+            &self.scratch_nodes,
             &self.scratch_impulse,
             &self.scratch_position,
         );
@@ -771,8 +784,9 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
                                 stride *= ext;
                             }
                             if inside {
-                                m[l] += sm[base + idx];
-                                p[l] += sp[base + idx];
+                                let rec = &sn[base + idx];
+                                m[l] += rec[3];
+                                p[l] += record_momentum::<T, D>(rec);
                                 if separate {
                                     imp[l] += si[base + idx];
                                 }
