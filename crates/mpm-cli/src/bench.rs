@@ -438,6 +438,7 @@ fn peer_stepper<K: Kernel, L: GridLayout>(
             "E": YOUNG, "nu": POISSON, "bulk": BULK, "rho": RHO, "boundary": "slip",
             "phases_ms_per_step": phase_json(&phases, constitutive * timed_steps, timed_steps),
             "bytes_per_particle": p.bytes_per_particle(),
+            "sort_bytes_per_particle": stepper.sort_bytes() / p.len().max(1),
             "grid_bytes": stepper.grid.heap_bytes(),
             "grid_nodes": stepper.grid.node_count(),
         }),
@@ -673,8 +674,13 @@ pub fn describe(rec: &Value) -> String {
         g("g2p"),
     );
     let mb = |k: &str| rec[k].as_f64().unwrap_or(f64::NAN) / 1048576.0;
+    // Only the peer scenes' records carry the stepper's sort arrays.
+    let sort = match rec["sort_bytes_per_particle"].as_u64() {
+        Some(b) => format!(" (+ {b} B/particle of sort work arrays)"),
+        None => String::new(),
+    };
     out += &format!(
-        "memory: {} B/particle, grid {:.1} MiB, rss {:.0} MiB, peak rss {:.0} MiB\n",
+        "memory: {} B/particle{sort}, grid {:.1} MiB, rss {:.0} MiB, peak rss {:.0} MiB\n",
         rec["bytes_per_particle"],
         mb("grid_bytes"),
         mb("rss_bytes"),

@@ -148,6 +148,12 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
         }
     }
 
+    /// Bytes of the sort's per-particle work arrays (home cells and the spare
+    /// arrays of [`Particles::reorder_with`]), held between steps.
+    pub fn sort_bytes(&self) -> usize {
+        self.cells.capacity() * std::mem::size_of::<[i32; D]>() + self.reorder_scratch.bytes()
+    }
+
     /// True when APIC/MLS must use the gradient form (two nodes per axis on one grid:
     /// `D_p` is singular on nodes), see [`TransferScheme`].
     pub const fn gradient_form() -> bool {
