@@ -990,6 +990,57 @@ mod tests {
         assert!(g.block_count() >= 4 && g.block_count() <= 16);
     }
 
+    /// Many particles in runs and scattered, with halo blocks: the same result as a
+    /// plain stable sort by block (z slowest) and the set of blocks.
+    #[test]
+    fn binning_matches_a_stable_sort_with_halo() {
+        let n = 50_123;
+        // Runs of equal cells (as after last step's sort) mixed with scattered ones.
+        let mut state = 12345u64;
+        let mut next = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 33) as i32
+        };
+        let cells: Vec<[i32; 3]> = (0..n)
+            .map(|i| {
+                if i % 5 == 0 {
+                    [next() % 40 - 20, next() % 40 - 20, next() % 40 - 20]
+                } else {
+                    [
+                        (i / 700) as i32 % 37 - 9,
+                        (i / 9000) as i32,
+                        -((i / 20000) as i32),
+                    ]
+                }
+            })
+            .collect();
+        let halo = [[100, 100, 100], [0, 0, 0]];
+        let mut g = BlockSparseGrid::<f32, 3>::new(2);
+        let order = g.bin_with_halo(&cells, &halo);
+        let block = |c: &[i32; 3]| c.map(|v| v.div_euclid(BLOCK));
+        let mut expected: Vec<u32> = (0..n as u32).collect();
+        expected
+            .sort_by(|&a, &b| block_order(&block(&cells[a as usize]), &block(&cells[b as usize])));
+        assert_eq!(order, expected);
+        let mut blocks: Vec<[i32; 3]> = cells.iter().map(block).chain(halo).collect();
+        blocks.sort_by(block_order);
+        blocks.dedup();
+        assert_eq!(g.home_blocks(), &blocks[..]);
+        let homes = g.home_of_sorted();
+        for (i, &p) in order.iter().enumerate() {
+            let h = homes[i] as usize;
+            assert_eq!(block(&cells[p as usize]), blocks[h]);
+            assert!(g.home_range(h).contains(&i));
+        }
+        // The halo block [100, 100, 100] holds no particle: an empty range.
+        let h = g
+            .home_index(&[100, 100, 100])
+            .expect("halo block is a home block");
+        assert!(g.home_range(h).is_empty());
+    }
+
     #[test]
     fn scatter_sums_buffers_into_the_right_nodes() {
         // Put unit mass at chosen nodes through two home blocks that overlap.
