@@ -994,7 +994,7 @@ mod tests {
     /// plain stable sort by block (z slowest) and the set of blocks.
     #[test]
     fn binning_matches_a_stable_sort_with_halo() {
-        let n = 50_123;
+        let n: usize = 50_123;
         // Runs of equal cells (as after last step's sort) mixed with scattered ones.
         let mut state = 12345u64;
         let mut next = || {
