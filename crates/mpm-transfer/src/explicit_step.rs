@@ -100,6 +100,16 @@ pub fn stencils<T: Real, const D: usize, K: Kernel, L: GridLayout>(
     }
 }
 
+/// `c h²` when `D_p = c h² I` for every particle: one grid of a kernel with a
+/// [`Kernel::CONSTANT_SECOND_MOMENT`] `c`.
+#[inline(always)]
+fn constant_moment<T: Real, K: Kernel, L: GridLayout>(h: T) -> Option<T> {
+    match (L::GRIDS, K::CONSTANT_SECOND_MOMENT) {
+        (1, Some(c)) => Some(T::lit(c) * h * h),
+        _ => None,
+    }
+}
+
 /// `D_p = (1/GRIDS) Σ_k Σ_i w r rᵀ` from a particle's stencils, through the per-axis
 /// moments of the tensor-product weights ([`Stencil::axis_moments`]); on one grid of
 /// a kernel with a [`Kernel::CONSTANT_SECOND_MOMENT`] `c`, the constant `c h² I`.
@@ -108,8 +118,8 @@ pub fn moment_matrix<T: Real, const D: usize, K: Kernel, L: GridLayout>(
     st: &[Stencil<T, D>; 2],
     h: T,
 ) -> Matrix<T, D> {
-    if let (1, Some(c)) = (L::GRIDS, K::CONSTANT_SECOND_MOMENT) {
-        return Matrix::<T, D>::identity() * (T::lit(c) * h * h);
+    if let Some(m) = constant_moment::<T, K, L>(h) {
+        return Matrix::<T, D>::identity() * m;
     }
     let mut d = zero_matrix::<T, D>();
     for s in st.iter().take(L::GRIDS) {
@@ -130,8 +140,8 @@ pub fn moment_inverse<T: Real, const D: usize, K: Kernel, L: GridLayout>(
     st: &[Stencil<T, D>; 2],
     h: T,
 ) -> Option<Matrix<T, D>> {
-    if let (1, Some(c)) = (L::GRIDS, K::CONSTANT_SECOND_MOMENT) {
-        return Some(Matrix::<T, D>::identity() * (T::one() / (T::lit(c) * h * h)));
+    if let Some(m) = constant_moment::<T, K, L>(h) {
+        return Some(Matrix::<T, D>::identity() * (T::one() / m));
     }
     try_inverse(&moment_matrix::<T, D, K, L>(st, h))
 }
