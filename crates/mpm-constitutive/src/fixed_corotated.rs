@@ -5,8 +5,8 @@
 
 use crate::{ConstitutiveError, ConstitutiveModel, Lame};
 use mpm_math::{
-    cofactor, cofactor_differential, determinant, polar_rotation, svd_rotation_variant, Matrix,
-    Real,
+    cofactor, cofactor_differential, determinant, polar_rotation, polar_rotations,
+    svd_rotation_variant, Matrix, Real,
 };
 use serde::{Deserialize, Serialize};
 
@@ -34,6 +34,24 @@ impl<T: Real> FixedCorotated<T> {
         poisson_ratio: f64,
     ) -> Result<Self, ConstitutiveError> {
         Lame::from_young_poisson(youngs_modulus, poisson_ratio).map(Self::new)
+    }
+}
+
+impl<T: Real> FixedCorotated<T> {
+    /// `τ = 2μ(F − R)Fᵀ + λ(J − 1)J I` given the polar rotation `R` of `F`.
+    #[inline]
+    fn kirchhoff_stress_with<const D: usize>(
+        &self,
+        f: &Matrix<T, D>,
+        r: &Matrix<T, D>,
+    ) -> Matrix<T, D> {
+        let j = determinant(f);
+        let mut tau = (f - r) * f.transpose() * (T::lit(2.0) * self.lame.mu);
+        let vol = self.lame.lambda * (j - T::one()) * j;
+        for i in 0..D {
+            tau[(i, i)] += vol;
+        }
+        tau
     }
 }
 
@@ -110,14 +128,16 @@ impl<T: Real, const D: usize> ConstitutiveModel<T, D> for FixedCorotated<T> {
 
     /// `τ = 2μ(F − R)Fᵀ + λ(J − 1)J I` (uses `cof(F) Fᵀ = J I`).
     fn kirchhoff_stress(&self, f: &Matrix<T, D>) -> Matrix<T, D> {
-        let r = polar_rotation(f);
-        let j = determinant(f);
-        let mut tau = (f - r) * f.transpose() * (T::lit(2.0) * self.lame.mu);
-        let vol = self.lame.lambda * (j - T::one()) * j;
-        for i in 0..D {
-            tau[(i, i)] += vol;
+        self.kirchhoff_stress_with(f, &polar_rotation(f))
+    }
+
+    /// The rotations of the whole run at once ([`polar_rotations`], vectorised across
+    /// particles, the same bits as [`polar_rotation`]), then `τ` per particle.
+    fn kirchhoff_stresses(&self, fs: &[Matrix<T, D>], out: &mut [Matrix<T, D>]) {
+        polar_rotations(fs, out);
+        for (f, tau) in fs.iter().zip(out.iter_mut()) {
+            *tau = self.kirchhoff_stress_with(f, tau);
         }
-        tau
     }
 
     fn wave_speed(&self, density: T) -> T {

@@ -69,6 +69,19 @@ pub trait ConstitutiveModel<T: Real, const D: usize>: Send + Sync {
         self.first_piola(f) * f.transpose()
     }
 
+    /// `out[k] = kirchhoff_stress(&fs[k])` for a run of particles, bit for bit; models
+    /// with a vectorised path (fixed-corotated: [`mpm_math::polar_rotations`]) override
+    /// it. P2G calls this per block of particles.
+    ///
+    /// # Panics
+    /// If `fs` and `out` differ in length.
+    fn kirchhoff_stresses(&self, fs: &[Matrix<T, D>], out: &mut [Matrix<T, D>]) {
+        assert_eq!(fs.len(), out.len(), "kirchhoff_stresses: one output per F");
+        for (f, tau) in fs.iter().zip(out.iter_mut()) {
+            *tau = self.kirchhoff_stress(f);
+        }
+    }
+
     /// Whether `F` lies in the model's domain (e.g. `det F > 0` for neo-Hookean).
     /// Outside it the other methods may return non-finite values.
     fn is_admissible(&self, _f: &Matrix<T, D>) -> bool {
@@ -189,6 +202,13 @@ impl<T: Real, const D: usize> ConstitutiveModel<T, D> for ElasticModel<T> {
         match self {
             Self::FixedCorotated(m) => m.kirchhoff_stress(f),
             Self::NeoHookean(m) => m.kirchhoff_stress(f),
+        }
+    }
+
+    fn kirchhoff_stresses(&self, fs: &[Matrix<T, D>], out: &mut [Matrix<T, D>]) {
+        match self {
+            Self::FixedCorotated(m) => m.kirchhoff_stresses(fs, out),
+            Self::NeoHookean(m) => m.kirchhoff_stresses(fs, out),
         }
     }
 

@@ -179,6 +179,28 @@ impl<T: Real> Material<T> {
         })
     }
 
+    /// `out[k] = self.kirchhoff_stress(&state(k))` for a run of particles that all use
+    /// this material, bit for bit. `deformation` holds the run's `F` where particles
+    /// store it (empty otherwise); elastic solids then take the model's vectorised
+    /// path ([`ConstitutiveModel::kirchhoff_stresses`]).
+    pub fn kirchhoff_stresses<'a, const D: usize>(
+        &self,
+        deformation: &[Matrix<T, D>],
+        state: impl Fn(usize) -> StateRef<'a, T, D>,
+        out: &mut [Matrix<T, D>],
+    ) {
+        match self {
+            Material::Elastic(m) if deformation.len() == out.len() => {
+                m.kirchhoff_stresses(deformation, out)
+            }
+            _ => {
+                for (k, tau) in out.iter_mut().enumerate() {
+                    *tau = self.kirchhoff_stress(&state(k));
+                }
+            }
+        }
+    }
+
     /// The Kirchhoff stress split as `(τ_elastic, τ_viscous)`: the elastic/pressure
     /// part and the Newtonian viscous part `J μ (L + Lᵀ)` (zero for solids and
     /// inviscid fluids). The stepper applies the viscous part with the MLS gradient

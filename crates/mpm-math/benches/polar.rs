@@ -1,9 +1,10 @@
-//! Polar rotation of 3×3 `F`: the fast path (`polar_rotation`) against nalgebra's
+//! Polar rotation of 3×3 `F`: the fast path (`polar_rotation`), its batched form
+//! (`polar_rotations`, 16 matrices per vector lane set) and nalgebra's
 //! SVD route (`svd_rotation_variant`, `R = U Vᵀ`), f32 and f64, on 1024 jelly-like
 //! deformation gradients (rotation × stretch, det from 0.2 to 1.2).
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
-use mpm_math::{polar_rotation, svd_rotation_variant, Matrix, Real};
+use mpm_math::{polar_rotation, polar_rotations, svd_rotation_variant, Matrix, Real};
 use nalgebra::{Matrix3, Rotation3, Vector3};
 use std::hint::black_box;
 
@@ -28,6 +29,13 @@ fn bench_type<T: Real>(c: &mut Criterion) {
             for f in &fs {
                 black_box(polar_rotation(black_box(f)));
             }
+        })
+    });
+    let mut out = vec![Matrix::<T, 3>::zeros(); fs.len()];
+    g.bench_function("polar_rotations_batch", |b| {
+        b.iter(|| {
+            polar_rotations(black_box(&fs), &mut out);
+            black_box(&out);
         })
     });
     g.bench_function("nalgebra_svd_u_vt", |b| {

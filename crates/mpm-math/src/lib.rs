@@ -13,7 +13,7 @@ mod small;
 mod subnormals;
 
 pub use nalgebra;
-pub use polar::polar_rotation;
+pub use polar::{polar_rotation, polar_rotations};
 pub use small::*;
 pub use subnormals::flush_subnormals;
 

@@ -100,6 +100,191 @@ fn newton_polar_3d<T: Real, const D: usize>(f: &Matrix<T, D>) -> Option<Matrix<T
     None
 }
 
+/// Matrices per batch of [`polar_rotations`]: one AVX-512 register of `f32` per
+/// entry (two of AVX2, four of SSE2).
+const LANES: usize = 16;
+
+/// One 3×3 matrix per lane, entry-major: `m[r][c][l]` is entry `(r, c)` of lane `l`,
+/// so that every operation below is one loop over the lanes, which the compiler turns
+/// into vector instructions.
+type LaneMatrix<T> = [[[T; LANES]; 3]; 3];
+
+/// The polar rotations of many matrices, `out[i] = polar_rotation(&fs[i])` bit for
+/// bit: the same operations in the same order per matrix (checked in the tests), run
+/// on [`LANES`] matrices at a time. Each lane stops iterating where the scalar path
+/// returns; lanes the Newton path rejects take the scalar fallback.
+///
+/// # Panics
+/// If `fs` and `out` differ in length.
+pub fn polar_rotations<T: Real, const D: usize>(fs: &[Matrix<T, D>], out: &mut [Matrix<T, D>]) {
+    assert_eq!(
+        fs.len(),
+        out.len(),
+        "polar_rotations: one output per matrix"
+    );
+    if D != 3 {
+        for (f, r) in fs.iter().zip(out.iter_mut()) {
+            *r = polar_rotation(f);
+        }
+        return;
+    }
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::is_x86_feature_detected!("avx512f") {
+            // SAFETY: the CPU has the feature just detected.
+            return unsafe { polar_rotations_avx512(fs, out) };
+        }
+        if std::is_x86_feature_detected!("avx2") {
+            // SAFETY: as above.
+            return unsafe { polar_rotations_avx2(fs, out) };
+        }
+    }
+    polar_rotations_lanes(fs, out);
+}
+
+/// [`polar_rotations_lanes`] compiled for AVX-512 (no FMA contraction in Rust, so
+/// the results are the same bits as on any other target).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+fn polar_rotations_avx512<T: Real, const D: usize>(fs: &[Matrix<T, D>], out: &mut [Matrix<T, D>]) {
+    polar_rotations_lanes(fs, out);
+}
+
+/// [`polar_rotations_lanes`] compiled for AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn polar_rotations_avx2<T: Real, const D: usize>(fs: &[Matrix<T, D>], out: &mut [Matrix<T, D>]) {
+    polar_rotations_lanes(fs, out);
+}
+
+#[inline(always)]
+fn polar_rotations_lanes<T: Real, const D: usize>(fs: &[Matrix<T, D>], out: &mut [Matrix<T, D>]) {
+    for (fs, out) in fs.chunks(LANES).zip(out.chunks_mut(LANES)) {
+        // Unused lanes hold the identity (converges at once; results dropped).
+        let mut x = [[[T::zero(); LANES]; 3]; 3];
+        for r in 0..3 {
+            x[r][r] = [T::one(); LANES];
+        }
+        for (l, f) in fs.iter().enumerate() {
+            for r in 0..3 {
+                for c in 0..3 {
+                    x[r][c][l] = f[(r, c)];
+                }
+            }
+        }
+        let converged = newton_polar_lanes(&mut x);
+        for (l, (f, r)) in fs.iter().zip(out.iter_mut()).enumerate() {
+            *r = if converged[l] {
+                Matrix::<T, D>::from_fn(|i, j| x[i][j][l])
+            } else {
+                let (u, _, v) = svd_rotation_variant(f);
+                u * v.transpose()
+            };
+        }
+    }
+}
+
+/// Frobenius norm per lane, summed as nalgebra's `norm` does (each column's squares
+/// top to bottom, then the columns left to right).
+#[inline(always)]
+fn frobenius<T: Real>(m: &LaneMatrix<T>) -> [T; LANES] {
+    let mut out = [T::zero(); LANES];
+    for l in 0..LANES {
+        let col =
+            |c: usize| m[0][c][l] * m[0][c][l] + m[1][c][l] * m[1][c][l] + m[2][c][l] * m[2][c][l];
+        out[l] = (col(0) + col(1) + col(2)).sqrt();
+    }
+    out
+}
+
+/// Determinant per lane, in the order of [`crate::determinant`].
+#[inline(always)]
+fn determinant_lanes<T: Real>(m: &LaneMatrix<T>) -> [T; LANES] {
+    let mut out = [T::zero(); LANES];
+    for l in 0..LANES {
+        let e = |r: usize, c: usize| m[r][c][l];
+        out[l] = e(0, 0) * (e(1, 1) * e(2, 2) - e(1, 2) * e(2, 1))
+            - e(0, 1) * (e(1, 0) * e(2, 2) - e(1, 2) * e(2, 0))
+            + e(0, 2) * (e(1, 0) * e(2, 1) - e(1, 1) * e(2, 0));
+    }
+    out
+}
+
+/// [`newton_polar_3d`] on every lane: on return `x` holds the rotation of each lane
+/// marked `true`; `false` where the scalar path returns `None`. Every lane computes
+/// every step; a lane's state only changes while it runs, so each lane sees exactly
+/// the scalar sequence of operations.
+#[inline(always)]
+fn newton_polar_lanes<T: Real>(x: &mut LaneMatrix<T>) -> [bool; LANES] {
+    let norm = frobenius(x);
+    let mut det = determinant_lanes(x);
+    let root3 = T::lit(3f64.sqrt());
+    let min_ratio = T::lit(NEWTON_MIN_DET_RATIO);
+    let mut running = [false; LANES];
+    for l in 0..LANES {
+        let scale = norm[l] / root3;
+        let threshold = min_ratio * T::EPSILON * scale * scale * scale;
+        running[l] = det[l] > threshold;
+    }
+    let mut converged = [false; LANES];
+    let switch = T::EPSILON.sqrt();
+    let half = T::lit(0.5);
+    let mut x_norm = norm;
+    let mut scaled = [true; LANES];
+    let mut inv_t = [[[T::zero(); LANES]; 3]; 3];
+    let mut step = [[[T::zero(); LANES]; 3]; 3];
+    for _ in 0..MAX_NEWTON {
+        if !running.contains(&true) {
+            break;
+        }
+        // X⁻ᵀ = cof(X)/det(X), each entry in the order of `cofactor`.
+        for i in 0..3 {
+            let (i1, i2) = ((i + 1) % 3, (i + 2) % 3);
+            for j in 0..3 {
+                let (j1, j2) = ((j + 1) % 3, (j + 2) % 3);
+                for l in 0..LANES {
+                    inv_t[i][j][l] =
+                        (x[i1][j1][l] * x[i2][j2][l] - x[i1][j2][l] * x[i2][j1][l]) / det[l];
+                }
+            }
+        }
+        let inv_norm = frobenius(&inv_t);
+        // Selects rather than branches, so that the lanes stay vector code.
+        let mut zeta = [T::one(); LANES];
+        for l in 0..LANES {
+            let z = (inv_norm[l] / x_norm[l]).sqrt();
+            zeta[l] = if scaled[l] { z } else { T::one() };
+        }
+        // X ← ½(ζX + ζ⁻¹X⁻ᵀ) on running lanes; `step` keeps next − X for the test.
+        for i in 0..3 {
+            for j in 0..3 {
+                for l in 0..LANES {
+                    let next = (x[i][j][l] * zeta[l] + inv_t[i][j][l] / zeta[l]) * half;
+                    step[i][j][l] = next - x[i][j][l];
+                    x[i][j][l] = if running[l] { next } else { x[i][j][l] };
+                }
+            }
+        }
+        let change = frobenius(&step);
+        let new_norm = frobenius(x);
+        let new_det = determinant_lanes(x);
+        for l in 0..LANES {
+            // The scalar path per lane: after the unscaled step, done; otherwise stop
+            // (no convergence) on a non-finite norm or a determinant ≤ 0, and switch
+            // to the unscaled step once the change is below √ε‖X‖.
+            let scaled_step = running[l] && scaled[l];
+            converged[l] |= running[l] && !scaled[l];
+            let finite = new_norm[l].is_finite_real();
+            x_norm[l] = if scaled_step { new_norm[l] } else { x_norm[l] };
+            det[l] = if scaled_step { new_det[l] } else { det[l] };
+            let small_change = change[l] <= switch * new_norm[l];
+            scaled[l] = scaled[l] && !small_change;
+            running[l] = scaled_step && finite && new_det[l] > T::zero();
+        }
+    }
+    converged
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -215,6 +400,91 @@ mod tests {
                 "σ = {s:?}: {err:e}"
             );
         }
+    }
+
+    /// Matrices that take every branch of the Newton path: rotations, stretches,
+    /// conditions up to 1e8, tiny and huge scales, singular and inverted ones (the
+    /// fallback), mixed within one batch.
+    fn batch_cases() -> Vec<Matrix3<f64>> {
+        let mut cases = Vec::new();
+        let sigmas: &[[f64; 3]] = &[
+            [1.0, 1.0, 1.0],
+            [2.0, 2.0, 2.0],
+            [3.0, 3.0, 0.5],
+            [1.0, 1e-3, 1e-3],
+            [1.0, 1.0, 1e-5],
+            [1e4, 1.0, 1e-4],
+            [0.16, 0.9, 1.1],
+            [1e-7, 1e-7, 1e-7],
+            [1e6, 2e6, 3e6],
+            [1.0, 0.8, -0.5],
+            [2.0, 1.0, 0.0],
+            [1.0, 1.0, -1.0],
+            [0.0; 3],
+        ];
+        for (k, s) in sigmas.iter().enumerate() {
+            let t = k as f64;
+            cases.push(built(
+                rot([1.0, t, -0.5], 0.3 * t),
+                *s,
+                rot([t, 0.2, 1.0], -0.7 * t),
+            ));
+        }
+        // Deterministic pseudo-random entries in [-2, 2) and near-identity gradients.
+        let mut seed = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed >> 11) as f64 / (1u64 << 53) as f64 * 4.0 - 2.0
+        };
+        for k in 0..300 {
+            let m = Matrix3::from_fn(|_, _| next());
+            cases.push(if k % 2 == 0 {
+                m
+            } else {
+                Matrix3::identity() + m * 0.1
+            });
+        }
+        cases
+    }
+
+    fn batch_matches_scalar<T: Real>() {
+        let all: Vec<Matrix3<T>> = batch_cases().iter().map(|m| m.map(T::lit)).collect();
+        // Lengths around the lane count, and offsets that move every case to every lane.
+        for len in [1, 15, 16, 17, 40, all.len()] {
+            for start in [0, 3, 11] {
+                let fs = &all[start.min(all.len() - len)..][..len];
+                let mut out = vec![Matrix3::<T>::zeros(); len];
+                polar_rotations(fs, &mut out);
+                // The portable lane code (what a CPU without AVX runs) as well.
+                let mut portable = vec![Matrix3::<T>::zeros(); len];
+                polar_rotations_lanes(fs, &mut portable);
+                assert_eq!(out, portable);
+                for (f, r) in fs.iter().zip(&out) {
+                    let want = polar_rotation(f);
+                    let same = r
+                        .iter()
+                        .zip(want.iter())
+                        .all(|(a, b)| a.to_f64().to_bits() == b.to_f64().to_bits());
+                    assert!(same, "{} F = {f}: batch {r} vs scalar {want}", T::NAME);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn batch_is_bit_identical_to_the_scalar_path() {
+        batch_matches_scalar::<f32>();
+        batch_matches_scalar::<f64>();
+        // 2-D goes through the closed form per matrix.
+        let fs = [
+            Matrix2::new(1.0, 0.2, -0.3, 0.9),
+            Matrix2::new(2.0, 0.0, 0.0, -0.5),
+        ];
+        let mut out = [Matrix2::zeros(); 2];
+        polar_rotations(&fs, &mut out);
+        assert_eq!(out, [polar_rotation(&fs[0]), polar_rotation(&fs[1])]);
     }
 
     proptest! {

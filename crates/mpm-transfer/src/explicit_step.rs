@@ -13,6 +13,7 @@ use mpm_kernels::{Kernel, Stencil, MAX_NODES_PER_AXIS};
 use mpm_math::{flush_subnormals, try_inverse, zero_matrix, zero_vector, Matrix, Real, Vector};
 use rayon::prelude::*;
 use std::marker::PhantomData;
+use std::ops::Range;
 use std::time::Instant;
 
 /// Inputs of one step besides the particles.
@@ -78,6 +79,40 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Default for ExplicitStep
 
 /// Particles per parallel work item in G2P.
 pub const PARTICLE_CHUNK: usize = 512;
+
+/// Particles per run of [`Material::kirchhoff_stresses`] in P2G: two batches of the
+/// vectorised polar decomposition, small enough to stay in L1 with their `F`.
+const STRESS_RUN: usize = 32;
+
+/// The Kirchhoff stresses of the particles from `range.start` on that share its
+/// material, at most `out.len()` of them and none past `range.end`, through
+/// [`Material::kirchhoff_stresses`] (vectorised for elastic solids): `out[k]` is the
+/// stress of particle `range.start + k`. Returns how many were written (≥ 1 unless the
+/// range or `out` is empty).
+pub fn stress_run<T: Real, const D: usize>(
+    p: &Particles<T, D>,
+    materials: &[Material<T>],
+    range: Range<usize>,
+    out: &mut [Matrix<T, D>],
+) -> usize {
+    let start = range.start;
+    let last = range.end.min(start + out.len());
+    if start >= last {
+        return 0;
+    }
+    let material = p.material[start];
+    let mut end = start + 1;
+    while end < last && p.material[end] == material {
+        end += 1;
+    }
+    let deformation = p.deformation.get(start..end).unwrap_or(&[]);
+    materials[material as usize].kirchhoff_stresses(
+        deformation,
+        |k| p.state(start + k),
+        &mut out[..end - start],
+    );
+    end - start
+}
 
 /// A particle array of a scene with `n` particles split into chunks of
 /// [`PARTICLE_CHUNK`] (absent arrays: as many empty slices), so that one parallel
@@ -271,6 +306,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
         let need_moment = (affine || mls || viscous) && !gradient_form;
         let separate = scheme.needs(gradient_form).old_velocity;
         let rows = stencil_rows::<K, D>();
+        let batch_stress = elastic_forces && !viscous;
         let p = particles;
         self.grid.scatter_local(
             Self::buffer_extent(),
@@ -278,7 +314,15 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
             false,
             |_home, range, buf| {
                 let strides = buf.strides();
-                for i in range {
+                // Elastic stresses of runs of particles of one material at a time, so
+                // that models with a vectorised path use it (the same bits).
+                let mut run_stress = [zero_matrix::<T, D>(); STRESS_RUN];
+                let (mut run_start, mut run_end) = (range.start, range.start);
+                for i in range.clone() {
+                    if batch_stress && i == run_end {
+                        run_start = i;
+                        run_end = i + stress_run(p, materials, i..range.end, &mut run_stress);
+                    }
                     let x = p.x[i];
                     let st = stencils::<T, D, K, L>(&x, inv_h);
                     let d_inv = if need_moment {
@@ -293,7 +337,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
                     let (elastic, viscous_part) = match (viscous, elastic_forces) {
                         (true, true) => model.kirchhoff_stress_parts(&p.state(i)),
                         (true, false) => (zero, model.kirchhoff_stress_parts(&p.state(i)).1),
-                        (false, true) => (model.kirchhoff_stress(&p.state(i)), zero),
+                        (false, true) => (run_stress[i - run_start], zero),
                         (false, false) => (zero, zero),
                     };
                     let mut stress = elastic * scale;

@@ -23,7 +23,9 @@ pub mod timestep;
 pub use apic::Apic;
 pub use diagnostics::{component_sizes, connected_components, particle_totals, Fragments, Totals};
 pub use distributed::{CommStats, Decomposition};
-pub use explicit_step::{particle_chunks, ExplicitStepper, PhaseTimes, StepParams, PARTICLE_CHUNK};
+pub use explicit_step::{
+    particle_chunks, stress_run, ExplicitStepper, PhaseTimes, StepParams, PARTICLE_CHUNK,
+};
 pub use flip::Flip;
 pub use mls::Mls;
 use mpm_constitutive::StateFault;

@@ -11,7 +11,9 @@
 use mpm_constitutive::{ElasticModel, FixedCorotated, JFluid, Material, StateNeeds};
 use mpm_grid::{domain_walls, ContactKind, Dual, GridLayout, Single};
 use mpm_kernels::{Compact, CubicBSpline, Kernel, Linear, QuadraticBSpline};
-use mpm_transfer::{Apic, ExplicitStepper, Flip, Mls, Particles, Pic, StepParams, Transfer};
+use mpm_transfer::{
+    stress_run, Apic, ExplicitStepper, Flip, Mls, Particles, Pic, StepParams, Transfer,
+};
 use nalgebra::{Matrix3, Vector3};
 
 const H: f64 = 0.05;
@@ -151,4 +153,85 @@ fn cubic_matches_reference() {
 fn linear_and_compact_single_match_reference() {
     all_schemes::<Linear, Single>();
     all_schemes::<Compact, Single>();
+}
+
+/// P2G's stress runs (`stress_run`, vectorised for elastic solids) against the
+/// per-particle `Material::kirchhoff_stress`, bit for bit: four materials in runs of
+/// 1 to 40 particles, `F` near the identity, strongly stretched and inverted (the
+/// polar fallback), f32 and f64; each run stops at a material change, at the end of
+/// the range and at the buffer's length.
+fn stress_runs_match<T: mpm_math::Real>() {
+    use mpm_constitutive::{NeoHookean, Snow};
+    let lame = mpm_constitutive::Lame::from_young_poisson(1e4, 0.3).unwrap();
+    let materials: Vec<Material<T>> = vec![
+        Material::Elastic(ElasticModel::FixedCorotated(FixedCorotated::new(lame))),
+        Material::Elastic(ElasticModel::NeoHookean(NeoHookean::new(lame))),
+        Material::JFluid(JFluid::new(2e3, 7.0, 0.0).unwrap()),
+        Material::Snow(Snow::new(lame, 2.5e-2, 7.5e-3, 10.0).unwrap()),
+    ];
+    let needs = StateNeeds {
+        deformation: true,
+        plastic: true,
+        jacobian: true,
+        velocity_gradient: false,
+    };
+    let mut p = Particles::<T, 3>::new(false, needs);
+    let mut seed = 11u64;
+    let mut rnd = || {
+        seed = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+    };
+    let runs = [40usize, 1, 17, 3, 33, 16, 2, 25];
+    for (r, &len) in runs.iter().enumerate() {
+        for _ in 0..len {
+            let i = p.len();
+            let x = Vector3::from_fn(|_, _| T::lit(rnd()));
+            p.push(x, x, T::one(), T::one(), (r % 4) as u16, T::zero());
+            let f = match i % 5 {
+                0 => Matrix3::from_fn(|_, _| 2.0 * rnd()),
+                1 => Matrix3::new(1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, -1.0),
+                2 => Matrix3::from_diagonal(&Vector3::new(3.0, 0.2, 1.0)),
+                _ => Matrix3::identity() + Matrix3::from_fn(|_, _| 0.1 * rnd()),
+            };
+            p.deformation[i] = f.map(T::lit);
+            p.jacobian[i] = T::lit(1.0 + 0.1 * rnd());
+        }
+    }
+    let mut out = [Matrix3::<T>::zeros(); 32];
+    let mut i = 0;
+    let mut starts = Vec::new();
+    while i < p.len() {
+        let k = stress_run(&p, &materials, i..p.len(), &mut out);
+        assert!((1..=32).contains(&k));
+        for (j, tau) in out[..k].iter().enumerate() {
+            let want = materials[p.material[i + j] as usize].kirchhoff_stress(&p.state(i + j));
+            let same = tau
+                .iter()
+                .zip(want.iter())
+                .all(|(a, b)| a.to_f64().to_bits() == b.to_f64().to_bits());
+            assert!(same, "{}: particle {}: {tau} vs {want}", T::NAME, i + j);
+            assert_eq!(p.material[i + j], p.material[i]);
+        }
+        starts.push(i);
+        i += k;
+    }
+    // Runs split at every material change and every 32 particles.
+    let mut want = Vec::new();
+    let mut s = 0;
+    for &len in &runs {
+        want.extend((0..len).step_by(32).map(|o| s + o));
+        s += len;
+    }
+    assert_eq!(starts, want);
+    // The end of the range bounds a run too.
+    assert_eq!(stress_run(&p, &materials, 0..5, &mut out), 5);
+    assert_eq!(stress_run(&p, &materials, 7..7, &mut out), 0);
+}
+
+#[test]
+fn stress_runs_are_bit_identical_to_per_particle_stresses() {
+    stress_runs_match::<f32>();
+    stress_runs_match::<f64>();
 }
