@@ -35,9 +35,7 @@ impl<T: Real> FixedCorotated<T> {
     ) -> Result<Self, ConstitutiveError> {
         Lame::from_young_poisson(youngs_modulus, poisson_ratio).map(Self::new)
     }
-}
 
-impl<T: Real> FixedCorotated<T> {
     /// `τ = 2μ(F − R)Fᵀ + λ(J − 1)J I` given the polar rotation `R` of `F`.
     #[inline]
     fn kirchhoff_stress_with<const D: usize>(

@@ -71,7 +71,7 @@ pub trait ConstitutiveModel<T: Real, const D: usize>: Send + Sync {
 
     /// `out[k] = kirchhoff_stress(&fs[k])` for a run of particles, bit for bit; models
     /// with a vectorised path (fixed-corotated: [`mpm_math::polar_rotations`]) override
-    /// it. P2G calls this per block of particles.
+    /// it. P2G calls this on runs of consecutive particles of one material.
     ///
     /// # Panics
     /// If `fs` and `out` differ in length.
