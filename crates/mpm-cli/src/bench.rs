@@ -190,6 +190,7 @@ pub fn peer_scene(
             }
         }
     }
+    p.shrink_to_fit();
     let dt = 0.4 * h / (wave + 4.0);
     (p, vec![material], dt)
 }

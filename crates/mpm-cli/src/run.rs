@@ -430,6 +430,7 @@ pub fn build_particles<T: Real, const D: usize>(
             body_of.push(b as u16);
         }
     }
+    particles.shrink_to_fit();
     (particles, body_of)
 }
 

@@ -395,10 +395,10 @@ fn bench_writes_peer_records() {
         assert_eq!(r["particles"], 4096);
         assert_eq!(r["sane"], true);
         // The sort's arrays: home cells (12 B) and one spare per element type (u32 4,
-        // vector 12, scalar 4, u16 2, matrix 36), up to twice that where a spare took
-        // over an array that pushes had grown.
+        // vector 12, scalar 4, u16 2, matrix 36), exactly: the scene's arrays are
+        // shrunk to the particle count, and the spares swap with them.
         let sort = r["sort_bytes_per_particle"].as_u64().expect("sort bytes");
-        assert!((70..=140).contains(&sort), "sort arrays {sort} B/particle");
+        assert_eq!(sort, 70, "sort arrays {sort} B/particle");
         let nodes = if r["kernel"] == "compact" { 16 } else { 27 };
         assert_eq!(r["nodes_per_particle"], nodes);
         let ph = &r["phases_ms_per_step"];

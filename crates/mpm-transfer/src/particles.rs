@@ -140,6 +140,23 @@ impl<T: Real, const D: usize> Particles<T, D> {
         }
     }
 
+    /// Drops the spare capacity `push` leaves (a `Vec` grows by doubling: up to 2×
+    /// the particle count). Call once a scene is built: the stepper's reorder spares
+    /// swap with these arrays, so they then hold exactly one particle set each too.
+    pub fn shrink_to_fit(&mut self) {
+        self.id.shrink_to_fit();
+        self.x.shrink_to_fit();
+        self.v.shrink_to_fit();
+        self.mass.shrink_to_fit();
+        self.volume.shrink_to_fit();
+        self.material.shrink_to_fit();
+        self.deformation.shrink_to_fit();
+        self.plastic.shrink_to_fit();
+        self.jacobian.shrink_to_fit();
+        self.velocity_gradient.shrink_to_fit();
+        self.affine.shrink_to_fit();
+    }
+
     /// Bytes of state per particle (the arrays this scene actually holds).
     pub fn bytes_per_particle(&self) -> usize {
         use std::mem::size_of;
@@ -428,5 +445,26 @@ mod tests {
             spare.bytes() <= 2 * n * per_particle,
             "pushes grow a Vec at most 2×"
         );
+    }
+
+    #[test]
+    fn shrunk_arrays_keep_the_reorder_spares_exact() {
+        let n = 1000;
+        let mut p = numbered(n);
+        assert!(
+            p.x.capacity() > n,
+            "pushes left spare capacity (1024 for 1000)"
+        );
+        p.shrink_to_fit();
+        assert_eq!(p.x.capacity(), n);
+        assert_eq!(p.affine.capacity(), n);
+        let mut spare = ReorderScratch::default();
+        for k in [7u64, 13, 999] {
+            let order: Vec<u32> = (0..n as u64).map(|i| ((i * k) % n as u64) as u32).collect();
+            p.reorder_with(&order, &mut spare);
+        }
+        // Every spare (u32, vector, scalar, u16, matrix; f64, 3-D) holds exactly n.
+        assert_eq!(spare.bytes(), n * (4 + 24 + 8 + 2 + 72));
+        assert_eq!(p.velocity_gradient.capacity(), n);
     }
 }
