@@ -423,7 +423,7 @@ fn peer_stepper<K: Kernel, L: GridLayout>(
                 let (mut i, end) = (c * RUN, ((c + 1) * RUN).min(n));
                 let mut first = 0.0;
                 while i < end {
-                    let k = stress_run(&p, &materials, i..end, &mut taus);
+                    let k = stress_run(&p, &materials, i..end, false, &mut taus);
                     first += taus[..k].iter().map(|t| t[(0, 0)]).sum::<f32>();
                     i += k;
                 }

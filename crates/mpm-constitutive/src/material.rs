@@ -179,14 +179,17 @@ impl<T: Real> Material<T> {
         })
     }
 
-    /// `out[k] = self.kirchhoff_stress(&state(k))` for a run of particles that all use
-    /// this material, bit for bit. `deformation` holds the run's `F` where particles
-    /// store it (empty otherwise); elastic solids then take the model's vectorised
-    /// path ([`ConstitutiveModel::kirchhoff_stresses`]).
+    /// The Kirchhoff stresses of a run of particles that all use this material, bit
+    /// for bit: `out[k] = self.kirchhoff_stress(&state(k))`, or with `elastic_only`
+    /// the elastic part `self.kirchhoff_stress_parts(&state(k)).0` (the same for every
+    /// material without a viscous part). `deformation` holds the run's `F` where
+    /// particles store it (empty otherwise); elastic solids then take the model's
+    /// vectorised path ([`ConstitutiveModel::kirchhoff_stresses`]).
     pub fn kirchhoff_stresses<'a, const D: usize>(
         &self,
         deformation: &[Matrix<T, D>],
         state: impl Fn(usize) -> StateRef<'a, T, D>,
+        elastic_only: bool,
         out: &mut [Matrix<T, D>],
     ) {
         match self {
@@ -195,7 +198,11 @@ impl<T: Real> Material<T> {
             }
             _ => {
                 for (k, tau) in out.iter_mut().enumerate() {
-                    *tau = self.kirchhoff_stress(&state(k));
+                    *tau = if elastic_only {
+                        self.kirchhoff_stress_parts(&state(k)).0
+                    } else {
+                        self.kirchhoff_stress(&state(k))
+                    };
                 }
             }
         }
@@ -214,14 +221,22 @@ impl<T: Real> Material<T> {
         match self {
             Material::JFluid(m) if m.needs_velocity_gradient() => {
                 let j = s.jacobian.unwrap_or_else(T::one);
-                let pressure = m.kirchhoff_stress::<D>(j, None);
-                let viscous = match s.velocity_gradient {
-                    Some(l) => (l + l.transpose()) * (j * m.viscosity),
-                    None => Matrix::<T, D>::zeros(),
-                };
-                (pressure, viscous)
+                (m.kirchhoff_stress::<D>(j, None), self.viscous_stress(s))
             }
             _ => (self.kirchhoff_stress(s), Matrix::<T, D>::zeros()),
+        }
+    }
+
+    /// The viscous part of [`Self::kirchhoff_stress_parts`] alone, without
+    /// evaluating the elastic part.
+    #[inline]
+    pub fn viscous_stress<const D: usize>(&self, s: &StateRef<'_, T, D>) -> Matrix<T, D> {
+        match (self, s.velocity_gradient) {
+            (Material::JFluid(m), Some(l)) if m.needs_velocity_gradient() => {
+                let j = s.jacobian.unwrap_or_else(T::one);
+                (l + l.transpose()) * (j * m.viscosity)
+            }
+            _ => Matrix::<T, D>::zeros(),
         }
     }
 

@@ -86,13 +86,15 @@ const STRESS_RUN: usize = 32;
 
 /// The Kirchhoff stresses of the particles from `range.start` on that share its
 /// material, at most `out.len()` of them and none past `range.end`, through
-/// [`Material::kirchhoff_stresses`] (vectorised for elastic solids): `out[k]` is the
-/// stress of particle `range.start + k`. Returns how many were written (≥ 1 unless the
-/// range or `out` is empty).
+/// [`Material::kirchhoff_stresses`] (vectorised for elastic solids; `elastic_only`:
+/// without the viscous part, which P2G applies apart): `out[k]` is that of particle
+/// `range.start + k`. Returns how many were written (≥ 1 unless the range or `out`
+/// is empty).
 pub fn stress_run<T: Real, const D: usize>(
     p: &Particles<T, D>,
     materials: &[Material<T>],
     range: Range<usize>,
+    elastic_only: bool,
     out: &mut [Matrix<T, D>],
 ) -> usize {
     let start = range.start;
@@ -109,6 +111,7 @@ pub fn stress_run<T: Real, const D: usize>(
     materials[material as usize].kirchhoff_stresses(
         deformation,
         |k| p.state(start + k),
+        elastic_only,
         &mut out[..end - start],
     );
     end - start
@@ -306,7 +309,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
         let need_moment = (affine || mls || viscous) && !gradient_form;
         let separate = scheme.needs(gradient_form).old_velocity;
         let rows = stencil_rows::<K, D>();
-        let batch_stress = elastic_forces && !viscous;
+        let batch_stress = elastic_forces;
         let p = particles;
         self.grid.scatter_local(
             Self::buffer_extent(),
@@ -321,7 +324,8 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
                 for i in range.clone() {
                     if batch_stress && i == run_end {
                         run_start = i;
-                        run_end = i + stress_run(p, materials, i..range.end, &mut run_stress);
+                        run_end =
+                            i + stress_run(p, materials, i..range.end, viscous, &mut run_stress);
                     }
                     let x = p.x[i];
                     let st = stencils::<T, D, K, L>(&x, inv_h);
@@ -335,8 +339,10 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
                     let scale = -p.volume[i] * dt;
                     let zero = zero_matrix::<T, D>();
                     let (elastic, viscous_part) = match (viscous, elastic_forces) {
-                        (true, true) => model.kirchhoff_stress_parts(&p.state(i)),
-                        (true, false) => (zero, model.kirchhoff_stress_parts(&p.state(i)).1),
+                        (true, true) => {
+                            (run_stress[i - run_start], model.viscous_stress(&p.state(i)))
+                        }
+                        (true, false) => (zero, model.viscous_stress(&p.state(i))),
                         (false, true) => (run_stress[i - run_start], zero),
                         (false, false) => (zero, zero),
                     };

@@ -156,10 +156,13 @@ fn linear_and_compact_single_match_reference() {
 }
 
 /// P2G's stress runs (`stress_run`, vectorised for elastic solids) against the
-/// per-particle `Material::kirchhoff_stress`, bit for bit: four materials in runs of
-/// 1 to 40 particles, `F` near the identity, strongly stretched and inverted (the
-/// polar fallback), f32 and f64; each run stops at a material change, at the end of
-/// the range and at the buffer's length.
+/// per-particle `Material::kirchhoff_stress` and the elastic part of
+/// `kirchhoff_stress_parts`, bit for bit, and `viscous_stress` against its viscous
+/// part: five materials (a viscous fluid among
+/// them, so every particle stores `L`) in runs of 1 to 40 particles, `F` near the
+/// identity, strongly stretched and inverted (the polar fallback), f32 and f64; each
+/// run stops at a material change, at the end of the range and at the buffer's
+/// length.
 fn stress_runs_match<T: mpm_math::Real>() {
     use mpm_constitutive::{NeoHookean, Snow};
     let lame = mpm_constitutive::Lame::from_young_poisson(1e4, 0.3).unwrap();
@@ -168,12 +171,13 @@ fn stress_runs_match<T: mpm_math::Real>() {
         Material::Elastic(ElasticModel::NeoHookean(NeoHookean::new(lame))),
         Material::JFluid(JFluid::new(2e3, 7.0, 0.0).unwrap()),
         Material::Snow(Snow::new(lame, 2.5e-2, 7.5e-3, 10.0).unwrap()),
+        Material::JFluid(JFluid::new(2e3, 7.0, 0.5).unwrap()),
     ];
     let needs = StateNeeds {
         deformation: true,
         plastic: true,
         jacobian: true,
-        velocity_gradient: false,
+        velocity_gradient: true,
     };
     let mut p = Particles::<T, 3>::new(false, needs);
     let mut seed = 11u64;
@@ -188,7 +192,7 @@ fn stress_runs_match<T: mpm_math::Real>() {
         for _ in 0..len {
             let i = p.len();
             let x = Vector3::from_fn(|_, _| T::lit(rnd()));
-            p.push(x, x, T::one(), T::one(), (r % 4) as u16, T::zero());
+            p.push(x, x, T::one(), T::one(), (r % 5) as u16, T::zero());
             let f = match i % 5 {
                 0 => Matrix3::from_fn(|_, _| 2.0 * rnd()),
                 1 => Matrix3::new(1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, -1.0),
@@ -197,25 +201,38 @@ fn stress_runs_match<T: mpm_math::Real>() {
             };
             p.deformation[i] = f.map(T::lit);
             p.jacobian[i] = T::lit(1.0 + 0.1 * rnd());
+            p.velocity_gradient[i] = Matrix3::from_fn(|_, _| T::lit(rnd()));
         }
     }
     let mut out = [Matrix3::<T>::zeros(); 32];
-    let mut i = 0;
     let mut starts = Vec::new();
-    while i < p.len() {
-        let k = stress_run(&p, &materials, i..p.len(), &mut out);
-        assert!((1..=32).contains(&k));
-        for (j, tau) in out[..k].iter().enumerate() {
-            let want = materials[p.material[i + j] as usize].kirchhoff_stress(&p.state(i + j));
-            let same = tau
-                .iter()
-                .zip(want.iter())
-                .all(|(a, b)| a.to_f64().to_bits() == b.to_f64().to_bits());
-            assert!(same, "{}: particle {}: {tau} vs {want}", T::NAME, i + j);
-            assert_eq!(p.material[i + j], p.material[i]);
+    for elastic_only in [true, false] {
+        let mut i = 0;
+        starts.clear();
+        while i < p.len() {
+            let k = stress_run(&p, &materials, i..p.len(), elastic_only, &mut out);
+            assert!((1..=32).contains(&k));
+            for (j, tau) in out[..k].iter().enumerate() {
+                let model = &materials[p.material[i + j] as usize];
+                let state = p.state(i + j);
+                let (elastic, viscous) = model.kirchhoff_stress_parts(&state);
+                let whole = model.kirchhoff_stress(&state);
+                assert!(same_bits(&model.viscous_stress(&state), &viscous));
+                if viscous == Matrix3::zeros() {
+                    assert!(same_bits(&elastic, &whole));
+                }
+                let want = if elastic_only { elastic } else { whole };
+                assert!(
+                    same_bits(tau, &want),
+                    "{}: particle {}: {tau} vs {want}",
+                    T::NAME,
+                    i + j
+                );
+                assert_eq!(p.material[i + j], p.material[i]);
+            }
+            starts.push(i);
+            i += k;
         }
-        starts.push(i);
-        i += k;
     }
     // Runs split at every material change and every 32 particles.
     let mut want = Vec::new();
@@ -226,8 +243,15 @@ fn stress_runs_match<T: mpm_math::Real>() {
     }
     assert_eq!(starts, want);
     // The end of the range bounds a run too.
-    assert_eq!(stress_run(&p, &materials, 0..5, &mut out), 5);
-    assert_eq!(stress_run(&p, &materials, 7..7, &mut out), 0);
+    assert_eq!(stress_run(&p, &materials, 0..5, false, &mut out), 5);
+    assert_eq!(stress_run(&p, &materials, 7..7, false, &mut out), 0);
+}
+
+/// Equal bit for bit (NaN included: neo-Hookean's stress of an inverted `F`).
+fn same_bits<T: mpm_math::Real>(a: &Matrix3<T>, b: &Matrix3<T>) -> bool {
+    a.iter()
+        .zip(b.iter())
+        .all(|(x, y)| x.to_f64().to_bits() == y.to_f64().to_bits())
 }
 
 #[test]
