@@ -114,7 +114,8 @@ use mpm_implicit::{GridSolve, ImplicitStepError, Integrator, NewtonSettings, Sol
 use mpm_kernels::{Kernel, Stencil};
 use mpm_math::{determinant, flush_subnormals, try_inverse, Matrix, Real, Vector};
 use mpm_transfer::{
-    advect_checked, particle_chunks, Particles, PhaseTimes, StepError, StepParams, PARTICLE_CHUNK,
+    advect_checked, particle_chunks, stress_run, Particles, PhaseTimes, StepError, StepParams,
+    PARTICLE_CHUNK, STRESS_RUN,
 };
 use rayon::prelude::*;
 use std::marker::PhantomData;
@@ -721,7 +722,16 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
         self.grid
             .scatter(ext, flip, centroids, |_home, range, buf| {
                 let mut offsets = [Vector::<T, D>::zeros(); 2 * 64];
-                for i in range {
+                // Stresses of runs of one material at a time (vectorised for elastic
+                // solids, the same bits as one by one).
+                let mut run_stress = [Matrix::<T, D>::zeros(); STRESS_RUN];
+                let (mut run_start, mut run_end) = (range.start, range.start);
+                for i in range.clone() {
+                    if elastic_forces && i == run_end {
+                        run_start = i;
+                        run_end =
+                            i + stress_run(p, materials, i..range.end, false, &mut run_stress);
+                    }
                     let lane = lanes.get(i).copied().unwrap_or(0);
                     let xs = st.position[i];
                     let kp = st.moment_inverse[i];
@@ -755,7 +765,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
                     let fsn_inv_t = try_inverse(&st.relative_deformation[i])
                         .map_or(Matrix::<T, D>::identity(), |f| f.transpose());
                     let tau = if elastic_forces {
-                        materials[p.material[i] as usize].kirchhoff_stress(&p.state(i))
+                        run_stress[i - run_start]
                     } else {
                         Matrix::<T, D>::zeros()
                     };

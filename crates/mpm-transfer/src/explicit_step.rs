@@ -82,7 +82,7 @@ pub const PARTICLE_CHUNK: usize = 512;
 
 /// Particles per run of [`Material::kirchhoff_stresses`] in P2G: two batches of the
 /// vectorised polar decomposition, small enough to stay in L1 with their `F`.
-const STRESS_RUN: usize = 32;
+pub const STRESS_RUN: usize = 32;
 
 /// The Kirchhoff stresses of the particles from `range.start` on that share its
 /// material, at most `out.len()` of them and none past `range.end`, through

@@ -25,6 +25,7 @@ pub use diagnostics::{component_sizes, connected_components, particle_totals, Fr
 pub use distributed::{CommStats, Decomposition};
 pub use explicit_step::{
     particle_chunks, stress_run, ExplicitStepper, PhaseTimes, StepParams, PARTICLE_CHUNK,
+    STRESS_RUN,
 };
 pub use flip::Flip;
 pub use mls::Mls;
