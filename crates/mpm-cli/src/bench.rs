@@ -21,7 +21,7 @@ use mpm_kernels::{Compact, CubicBSpline, Kernel, Linear, QuadraticBSpline};
 use mpm_math::{determinant, Matrix, Real};
 use mpm_transfer::{
     stress_run, Apic, ExplicitStepper, Mls, Particles, PhaseTimes, StepParams, Transfer,
-    TransferScheme,
+    TransferScheme, STRESS_RUN,
 };
 use nalgebra::Vector3;
 use rayon::prelude::*;
@@ -413,7 +413,7 @@ fn peer_stepper<K: Kernel, L: GridLayout>(
     // The stress is evaluated inside P2G; time one separate pass over all particles,
     // in the runs P2G uses (`stress_run`: vectorised for elastic solids).
     let constitutive = pool.install(|| {
-        const RUN: usize = 32;
+        const RUN: usize = STRESS_RUN;
         let t = Instant::now();
         let n = p.len();
         let sum: f32 = (0..n.div_ceil(RUN))
