@@ -168,6 +168,13 @@ fn refill<X: Clone>(v: &mut Vec<X>, n: usize, value: X) {
     v.resize(n, value);
 }
 
+/// `v` at length `n` without clearing what it already holds (new entries `value`):
+/// for arrays whose parallel chunks each zero themselves right before use, so that
+/// the zeroing runs on every thread and in cache instead of as one serial memset.
+fn resize_stale<X: Clone>(v: &mut Vec<X>, n: usize, value: X) {
+    v.resize(n, value);
+}
+
 /// `v` in chunks of `chunk`, or `count` empty slices when `v` is empty (an absent
 /// optional array or channel), so that it can be zipped with the present ones.
 pub fn optional_chunks<X>(v: &mut [X], chunk: usize, count: usize) -> Vec<&mut [X]> {
@@ -581,8 +588,9 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
         let n_home = self.home_blocks.len();
         let zero = Vector::<T, D>::zeros();
         self.scratch_ext = ext;
-        refill(&mut self.scratch_nodes, n_home * per_home, [T::zero(); 4]);
-        refill(
+        // Zeroed per home block below, in parallel.
+        resize_stale(&mut self.scratch_nodes, n_home * per_home, [T::zero(); 4]);
+        resize_stale(
             &mut self.scratch_impulse,
             if separate_impulse {
                 n_home * per_home
@@ -591,7 +599,7 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
             },
             zero,
         );
-        refill(
+        resize_stale(
             &mut self.scratch_position,
             if positions { n_home * per_home } else { 0 },
             zero,
@@ -608,6 +616,9 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
             .into_par_iter()
             .enumerate()
             .for_each(|(h, (nodes, imp, pos))| {
+                nodes.fill([T::zero(); 4]);
+                imp.fill(zero);
+                pos.fill(zero);
                 let mut buf = LocalBuffer {
                     origin: home_blocks[h].map(|v| v * BLOCK),
                     ext,
@@ -729,10 +740,11 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
         let zero = Vector::<T, D>::zeros();
         let separate = !self.scratch_impulse.is_empty();
         let positions = !self.scratch_position.is_empty();
-        refill(&mut self.mass, total, T::zero());
-        refill(&mut self.momentum, total, zero);
-        refill(&mut self.impulse, if separate { total } else { 0 }, zero);
-        refill(
+        // Zeroed per block below, in parallel.
+        resize_stale(&mut self.mass, total, T::zero());
+        resize_stale(&mut self.momentum, total, zero);
+        resize_stale(&mut self.impulse, if separate { total } else { 0 }, zero);
+        resize_stale(
             &mut self.position_moment,
             if positions { total } else { 0 },
             zero,
@@ -757,6 +769,10 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
             .into_par_iter()
             .enumerate()
             .for_each(|(chunk, (m, p, imp, pos))| {
+                m.fill(T::zero());
+                p.fill(zero);
+                imp.fill(zero);
+                pos.fill(zero);
                 flush_subnormals(|| {
                     let grid = chunk / n_blocks;
                     let block = chunk % n_blocks;
@@ -813,16 +829,15 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
         let n_blocks = self.blocks.len();
         let total = self.node_count();
         let zero = Vector::<T, D>::zeros();
-        refill(&mut self.velocity, total, zero);
+        // Every entry is written below, in parallel (zero where there is no mass).
+        resize_stale(&mut self.velocity, total, zero);
         if keep_old {
-            refill(&mut self.velocity_old, total, zero);
+            resize_stale(&mut self.velocity_old, total, zero);
             self.velocity_old
                 .par_iter_mut()
                 .zip(self.mass.par_iter().zip(self.momentum.par_iter()))
                 .for_each(|(vo, (m, p))| {
-                    if *m > T::zero() {
-                        *vo = p / *m;
-                    }
+                    *vo = if *m > T::zero() { p / *m } else { zero };
                 });
         } else {
             self.velocity_old.clear();
@@ -853,6 +868,8 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
                             };
                             let q = position.get(first + l).unwrap_or(&zero);
                             *vl = f(grid, node, m, &total, q);
+                        } else {
+                            *vl = zero;
                         }
                     }
                 })
