@@ -114,8 +114,8 @@ use mpm_implicit::{GridSolve, ImplicitStepError, Integrator, NewtonSettings, Sol
 use mpm_kernels::{Kernel, Stencil};
 use mpm_math::{determinant, flush_subnormals, try_inverse, Matrix, Real, Vector};
 use mpm_transfer::{
-    advect_checked, particle_chunks, stress_run, Particles, PhaseTimes, StepError, StepParams,
-    PARTICLE_CHUNK, STRESS_RUN,
+    advect_checked, particle_chunks, Particles, PhaseTimes, StepError, StepParams, StressRuns,
+    PARTICLE_CHUNK,
 };
 use rayon::prelude::*;
 use std::marker::PhantomData;
@@ -724,14 +724,8 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
                 let mut offsets = [Vector::<T, D>::zeros(); 2 * 64];
                 // Stresses of runs of one material at a time (vectorised for elastic
                 // solids, the same bits as one by one).
-                let mut run_stress = [Matrix::<T, D>::zeros(); STRESS_RUN];
-                let (mut run_start, mut run_end) = (range.start, range.start);
+                let mut stresses = StressRuns::default();
                 for i in range.clone() {
-                    if elastic_forces && i == run_end {
-                        run_start = i;
-                        run_end =
-                            i + stress_run(p, materials, i..range.end, false, &mut run_stress);
-                    }
                     let lane = lanes.get(i).copied().unwrap_or(0);
                     let xs = st.position[i];
                     let kp = st.moment_inverse[i];
@@ -765,7 +759,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
                     let fsn_inv_t = try_inverse(&st.relative_deformation[i])
                         .map_or(Matrix::<T, D>::identity(), |f| f.transpose());
                     let tau = if elastic_forces {
-                        run_stress[i - run_start]
+                        stresses.get(p, materials, i, range.end, false)
                     } else {
                         Matrix::<T, D>::zeros()
                     };

@@ -18,10 +18,10 @@ use crate::scene::{GridKind, Kernel as KernelKind, Precision, Scene};
 use mpm_constitutive::{ElasticModel, FixedCorotated, JFluid, Material, StateNeeds};
 use mpm_grid::{domain_walls, ContactKind, Dual, GridLayout, Single};
 use mpm_kernels::{Compact, CubicBSpline, Kernel, Linear, QuadraticBSpline};
-use mpm_math::{determinant, Matrix, Real};
+use mpm_math::{determinant, Real};
 use mpm_transfer::{
-    stress_run, Apic, ExplicitStepper, Mls, Particles, PhaseTimes, StepParams, Transfer,
-    TransferScheme, STRESS_RUN,
+    Apic, ExplicitStepper, Mls, Particles, PhaseTimes, StepParams, StressRuns, Transfer,
+    TransferScheme, PARTICLE_CHUNK,
 };
 use nalgebra::Vector3;
 use rayon::prelude::*;
@@ -413,21 +413,16 @@ fn peer_stepper<K: Kernel, L: GridLayout>(
     // The stress is evaluated inside P2G; time one separate pass over all particles,
     // in the runs P2G uses (`stress_run`: vectorised for elastic solids).
     let constitutive = pool.install(|| {
-        const RUN: usize = STRESS_RUN;
         let t = Instant::now();
         let n = p.len();
-        let sum: f32 = (0..n.div_ceil(RUN))
+        let sum: f32 = (0..n.div_ceil(PARTICLE_CHUNK))
             .into_par_iter()
             .map(|c| {
-                let mut taus = [Matrix::<f32, 3>::zeros(); RUN];
-                let (mut i, end) = (c * RUN, ((c + 1) * RUN).min(n));
-                let mut first = 0.0;
-                while i < end {
-                    let k = stress_run(&p, &materials, i..end, false, &mut taus);
-                    first += taus[..k].iter().map(|t| t[(0, 0)]).sum::<f32>();
-                    i += k;
-                }
-                first
+                let mut stresses = StressRuns::default();
+                let end = ((c + 1) * PARTICLE_CHUNK).min(n);
+                (c * PARTICLE_CHUNK..end)
+                    .map(|i| stresses.get(&p, &materials, i, end, false)[(0, 0)])
+                    .sum::<f32>()
             })
             .sum();
         std::hint::black_box(sum);

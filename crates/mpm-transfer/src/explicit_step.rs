@@ -117,6 +117,44 @@ pub fn stress_run<T: Real, const D: usize>(
     end - start
 }
 
+/// The stresses of consecutive particles, evaluated a run at a time through
+/// [`stress_run`] (vectorised for elastic solids) and served one by one, for loops
+/// over a range of particles in order (P2G: one per home block).
+#[derive(Clone, Copy, Debug)]
+pub struct StressRuns<T: Real, const D: usize> {
+    stress: [Matrix<T, D>; STRESS_RUN],
+    run: (usize, usize),
+}
+
+impl<T: Real, const D: usize> Default for StressRuns<T, D> {
+    fn default() -> Self {
+        Self {
+            stress: [zero_matrix::<T, D>(); STRESS_RUN],
+            run: (0, 0),
+        }
+    }
+}
+
+impl<T: Real, const D: usize> StressRuns<T, D> {
+    /// The stress of particle `i` (`elastic_only` as in [`stress_run`]); a new run
+    /// from `i` to at most `end` is evaluated when `i` is outside the current one.
+    #[inline(always)]
+    pub fn get(
+        &mut self,
+        p: &Particles<T, D>,
+        materials: &[Material<T>],
+        i: usize,
+        end: usize,
+        elastic_only: bool,
+    ) -> Matrix<T, D> {
+        if !(self.run.0..self.run.1).contains(&i) {
+            let n = stress_run(p, materials, i..end, elastic_only, &mut self.stress);
+            self.run = (i, i + n);
+        }
+        self.stress[i - self.run.0]
+    }
+}
+
 /// A particle array of a scene with `n` particles split into chunks of
 /// [`PARTICLE_CHUNK`] (absent arrays: as many empty slices), so that one parallel
 /// loop can zip whichever arrays the scene stores.
@@ -309,7 +347,6 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
         let need_moment = (affine || mls || viscous) && !gradient_form;
         let separate = scheme.needs(gradient_form).old_velocity;
         let rows = stencil_rows::<K, D>();
-        let batch_stress = elastic_forces;
         let p = particles;
         self.grid.scatter_local(
             Self::buffer_extent(),
@@ -319,14 +356,8 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
                 let strides = buf.strides();
                 // Elastic stresses of runs of particles of one material at a time, so
                 // that models with a vectorised path use it (the same bits).
-                let mut run_stress = [zero_matrix::<T, D>(); STRESS_RUN];
-                let (mut run_start, mut run_end) = (range.start, range.start);
+                let mut stresses = StressRuns::default();
                 for i in range.clone() {
-                    if batch_stress && i == run_end {
-                        run_start = i;
-                        run_end =
-                            i + stress_run(p, materials, i..range.end, viscous, &mut run_stress);
-                    }
                     let x = p.x[i];
                     let st = stencils::<T, D, K, L>(&x, inv_h);
                     let d_inv = if need_moment {
@@ -339,11 +370,12 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
                     let scale = -p.volume[i] * dt;
                     let zero = zero_matrix::<T, D>();
                     let (elastic, viscous_part) = match (viscous, elastic_forces) {
-                        (true, true) => {
-                            (run_stress[i - run_start], model.viscous_stress(&p.state(i)))
-                        }
+                        (true, true) => (
+                            stresses.get(p, materials, i, range.end, true),
+                            model.viscous_stress(&p.state(i)),
+                        ),
                         (true, false) => (zero, model.viscous_stress(&p.state(i))),
-                        (false, true) => (run_stress[i - run_start], zero),
+                        (false, true) => (stresses.get(p, materials, i, range.end, false), zero),
                         (false, false) => (zero, zero),
                     };
                     let mut stress = elastic * scale;

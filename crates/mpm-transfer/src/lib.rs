@@ -24,8 +24,8 @@ pub use apic::Apic;
 pub use diagnostics::{component_sizes, connected_components, particle_totals, Fragments, Totals};
 pub use distributed::{CommStats, Decomposition};
 pub use explicit_step::{
-    particle_chunks, stress_run, ExplicitStepper, PhaseTimes, StepParams, PARTICLE_CHUNK,
-    STRESS_RUN,
+    particle_chunks, stress_run, ExplicitStepper, PhaseTimes, StepParams, StressRuns,
+    PARTICLE_CHUNK, STRESS_RUN,
 };
 pub use flip::Flip;
 pub use mls::Mls;

@@ -18,6 +18,16 @@ use nalgebra::{Matrix3, Vector3};
 
 const H: f64 = 0.05;
 
+/// Deterministic pseudo-random numbers in [−0.5, 0.5) (a 64-bit LCG's top 53 bits).
+fn uniform_centred(mut seed: u64) -> impl FnMut() -> f64 {
+    move || {
+        seed = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+    }
+}
+
 fn scene(fluid: bool, affine: bool) -> (Particles<f64, 3>, Vec<Material<f64>>) {
     let needs = if fluid {
         StateNeeds {
@@ -41,13 +51,7 @@ fn scene(fluid: bool, affine: bool) -> (Particles<f64, 3>, Vec<Material<f64>>) {
     let mut p = Particles::new(affine, needs);
     let dx = H / 2.0;
     let vol = dx * dx * dx;
-    let mut seed = 7u64;
-    let mut rnd = || {
-        seed = seed
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-    };
+    let mut rnd = uniform_centred(7);
     for i in 0..10 {
         for j in 0..10 {
             for k in 0..10 {
@@ -180,13 +184,7 @@ fn stress_runs_match<T: mpm_math::Real>() {
         velocity_gradient: true,
     };
     let mut p = Particles::<T, 3>::new(false, needs);
-    let mut seed = 11u64;
-    let mut rnd = || {
-        seed = seed
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-    };
+    let mut rnd = uniform_centred(11);
     let runs = [40usize, 1, 17, 3, 33, 16, 2, 25];
     for (r, &len) in runs.iter().enumerate() {
         for _ in 0..len {
