@@ -6,7 +6,7 @@
 //! On one grid its first moment is off by `−h sin(2πf)/(2π)`; the error flips sign on
 //! a grid shifted by `h/2`, so it needs the dual layout (`methods.md` §2).
 
-use crate::{Kernel, LayoutKind, Weights1d, MAX_NODES_PER_AXIS};
+use crate::{Kernel, LaneWeights, LayoutKind, Weights1d, MAX_NODES_PER_AXIS};
 use mpm_math::Real;
 
 /// Compact C² kernel: 2 nodes per axis on each of the two staggered grids.
@@ -68,6 +68,73 @@ impl Kernel for Compact {
             from_sin_cos(base0, f0, sn, cs),
             from_sin_cos(base1, f1, -sn, -cs),
         )
+    }
+
+    /// [`Self::weights_1d`] one step at a time over all lanes (same operations).
+    #[inline(always)]
+    fn weights_1d_lanes<T: Real, const L: usize>(xg: &[T; L], out: &mut LaneWeights<T, L>) {
+        let mut f = [T::zero(); L];
+        lanes_base_frac(xg, &mut out.base, &mut f);
+        let (sn, cs) = lanes_sin_cos(&f);
+        lanes_from_sin_cos(&f, &sn, &cs, out);
+    }
+
+    /// [`Self::weights_1d_half_apart`] one step at a time over all lanes: one sin/cos
+    /// per lane serves both grids.
+    #[inline(always)]
+    fn weights_1d_half_apart_lanes<T: Real, const L: usize>(
+        xg0: &[T; L],
+        xg1: &[T; L],
+        out0: &mut LaneWeights<T, L>,
+        out1: &mut LaneWeights<T, L>,
+    ) {
+        let mut f0 = [T::zero(); L];
+        let mut f1 = [T::zero(); L];
+        lanes_base_frac(xg0, &mut out0.base, &mut f0);
+        lanes_base_frac(xg1, &mut out1.base, &mut f1);
+        let (sn, cs) = lanes_sin_cos(&f0);
+        lanes_from_sin_cos(&f0, &sn, &cs, out0);
+        let (sn, cs) = (sn.map(|x| -x), cs.map(|x| -x));
+        lanes_from_sin_cos(&f1, &sn, &cs, out1);
+    }
+}
+
+/// `base = floor(xg)` and `f = xg − base` per lane.
+#[inline(always)]
+fn lanes_base_frac<T: Real, const L: usize>(xg: &[T; L], base: &mut [i32; L], f: &mut [T; L]) {
+    for l in 0..L {
+        base[l] = xg[l].floor_index_lanes();
+    }
+    for l in 0..L {
+        f[l] = xg[l] - T::lit(base[l] as f64);
+    }
+}
+
+/// `(sin 2πf, cos 2πf)` per lane.
+#[inline(always)]
+fn lanes_sin_cos<T: Real, const L: usize>(f: &[T; L]) -> ([T; L], [T; L]) {
+    let mut sn = [T::zero(); L];
+    let mut cs = [T::zero(); L];
+    for l in 0..L {
+        (sn[l], cs[l]) = f[l].sin_cos_turns_lanes();
+    }
+    (sn, cs)
+}
+
+/// [`from_sin_cos`] per lane.
+#[inline(always)]
+fn lanes_from_sin_cos<T: Real, const L: usize>(
+    f: &[T; L],
+    sin: &[T; L],
+    cos: &[T; L],
+    out: &mut LaneWeights<T, L>,
+) {
+    for l in 0..L {
+        let s = sin[l] / T::two_pi();
+        out.w[0][l] = T::one() - f[l] + s;
+        out.w[1][l] = f[l] - s;
+        out.dw[0][l] = cos[l] - T::one();
+        out.dw[1][l] = T::one() - cos[l];
     }
 }
 

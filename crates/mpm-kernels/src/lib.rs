@@ -12,12 +12,14 @@ mod cubic_bspline;
 mod linear;
 mod quadratic_bspline;
 mod stencil;
+mod stencil_lanes;
 
 pub use compact::Compact;
 pub use cubic_bspline::CubicBSpline;
 pub use linear::Linear;
 pub use quadratic_bspline::QuadraticBSpline;
 pub use stencil::{Stencil, MAX_NODES_PER_AXIS};
+pub use stencil_lanes::{StencilLanes, STENCIL_LANES};
 
 use mpm_math::Real;
 
@@ -40,6 +42,40 @@ pub struct Weights1d<T> {
     pub w: [T; MAX_NODES_PER_AXIS],
     /// `dN/du(u_j)`: derivative with respect to the particle position in cell units.
     pub dw: [T; MAX_NODES_PER_AXIS],
+}
+
+/// 1-D weights of `L` particles on one grid, lane-major ([`Weights1d`] per lane `l`:
+/// `base[l]`, `w[j][l]`, `dw[j][l]`), for [`StencilLanes`].
+#[derive(Clone, Copy, Debug)]
+pub struct LaneWeights<T, const L: usize> {
+    /// First node per lane.
+    pub base: [i32; L],
+    /// `N(u_j)` per node `j` and lane (entries past `NODES_PER_AXIS` are zero).
+    pub w: [[T; L]; MAX_NODES_PER_AXIS],
+    /// `dN/du(u_j)` per node `j` and lane.
+    pub dw: [[T; L]; MAX_NODES_PER_AXIS],
+}
+
+impl<T: Real, const L: usize> Default for LaneWeights<T, L> {
+    fn default() -> Self {
+        Self {
+            base: [0; L],
+            w: [[T::zero(); L]; MAX_NODES_PER_AXIS],
+            dw: [[T::zero(); L]; MAX_NODES_PER_AXIS],
+        }
+    }
+}
+
+impl<T: Real, const L: usize> LaneWeights<T, L> {
+    /// Stores lane `l`'s weights.
+    #[inline(always)]
+    pub fn set(&mut self, l: usize, k: &Weights1d<T>) {
+        self.base[l] = k.base;
+        for j in 0..MAX_NODES_PER_AXIS {
+            self.w[j][l] = k.w[j];
+            self.dw[j][l] = k.dw[j];
+        }
+    }
 }
 
 /// A 1-D interpolation profile used as a tensor product.
@@ -94,6 +130,33 @@ pub trait Kernel: Copy + Default + Send + Sync + std::fmt::Debug + 'static {
     #[inline(always)]
     fn weights_1d_half_apart<T: Real>(xg0: T, xg1: T) -> (Weights1d<T>, Weights1d<T>) {
         (Self::weights_1d(xg0), Self::weights_1d(xg1))
+    }
+
+    /// [`Self::weights_1d`] of `L` positions, lane `l` bit for bit that of `xg[l]`.
+    /// The default calls it per lane; a kernel whose weights are a long chain (the
+    /// compact kernel's sin/cos) overrides this with one loop over the lanes per step
+    /// of the chain, which the compiler turns into vector instructions.
+    #[inline(always)]
+    fn weights_1d_lanes<T: Real, const L: usize>(xg: &[T; L], out: &mut LaneWeights<T, L>) {
+        for (l, x) in xg.iter().enumerate() {
+            out.set(l, &Self::weights_1d(*x));
+        }
+    }
+
+    /// [`Self::weights_1d_half_apart`] of `L` position pairs, lane by lane as
+    /// [`Self::weights_1d_lanes`].
+    #[inline(always)]
+    fn weights_1d_half_apart_lanes<T: Real, const L: usize>(
+        xg0: &[T; L],
+        xg1: &[T; L],
+        out0: &mut LaneWeights<T, L>,
+        out1: &mut LaneWeights<T, L>,
+    ) {
+        for l in 0..L {
+            let (k0, k1) = Self::weights_1d_half_apart(xg0[l], xg1[l]);
+            out0.set(l, &k0);
+            out1.set(l, &k1);
+        }
     }
 }
 

@@ -1,6 +1,6 @@
 //! Quadratic B-spline (C¹): `3/4 − u²` on `|u| < 1/2`, `(3/2 − |u|)²/2` on `1/2 ≤ |u| < 3/2`.
 
-use crate::{Kernel, LayoutKind, Weights1d, MAX_NODES_PER_AXIS};
+use crate::{Kernel, LaneWeights, LayoutKind, Weights1d, MAX_NODES_PER_AXIS};
 use mpm_math::Real;
 
 /// Quadratic B-spline: 3 nodes per axis, single grid (`D_p = h²/4 · I`).
@@ -60,5 +60,24 @@ impl Kernel for QuadraticBSpline {
         dw[1] = -T::lit(2.0) * b;
         dw[2] = c;
         Weights1d { base, w, dw }
+    }
+
+    /// [`Self::weights_1d`] over all lanes, the same operations.
+    #[inline(always)]
+    fn weights_1d_lanes<T: Real, const L: usize>(xg: &[T; L], out: &mut LaneWeights<T, L>) {
+        for l in 0..L {
+            out.base[l] = (xg[l] - T::lit(0.5)).floor_index_lanes();
+        }
+        let half = T::lit(0.5);
+        for l in 0..L {
+            let fx = xg[l] - T::lit(out.base[l] as f64);
+            let (a, b, c) = (T::lit(1.5) - fx, fx - T::one(), fx - half);
+            out.w[0][l] = half * a * a;
+            out.w[1][l] = T::lit(0.75) - b * b;
+            out.w[2][l] = half * c * c;
+            out.dw[0][l] = -a;
+            out.dw[1][l] = -T::lit(2.0) * b;
+            out.dw[2][l] = c;
+        }
     }
 }

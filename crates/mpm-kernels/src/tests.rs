@@ -240,3 +240,103 @@ fn tensor_product_gradients_match_finite_differences() {
     gradient_check::<Compact, 3>(0.25);
     gradient_check::<QuadraticBSpline, 3>(0.0);
 }
+
+/// Every field of two stencils, bit for bit (`-0.0 ≠ 0.0`).
+fn same_bits<T: mpm_math::Real, const D: usize>(a: &Stencil<T, D>, b: &Stencil<T, D>) -> bool {
+    let bits = |x: T| x.to_f64().to_bits();
+    let rows = |p: &[[T; MAX_NODES_PER_AXIS]; D], q: &[[T; MAX_NODES_PER_AXIS]; D]| {
+        p.iter()
+            .flatten()
+            .zip(q.iter().flatten())
+            .all(|(x, y)| bits(*x) == bits(*y))
+    };
+    a.base == b.base
+        && rows(&a.w, &b.w)
+        && rows(&a.dw, &b.dw)
+        && a.frac
+            .iter()
+            .zip(&b.frac)
+            .all(|(x, y)| bits(*x) == bits(*y))
+        && a.n == b.n
+        && bits(a.inv_h) == bits(b.inv_h)
+}
+
+/// `StencilLanes` against `Stencil::new` / `Stencil::pair` for every lane count and
+/// position: exact nodes, half cells, points a rounding step off them, negative
+/// coordinates and a quasi-random cloud; one grid, the dual layout (half a cell apart,
+/// the shared-sin/cos path) and two grids at another spacing.
+fn lanes_match_scalar<K: Kernel, T: mpm_math::Real, const D: usize>() {
+    let inv_h = T::lit(32.0);
+    let mut xs: Vec<Vector<T, D>> = Vec::new();
+    let special = [
+        0.0,
+        0.5,
+        1.0 / 32.0,
+        0.5 / 32.0,
+        0.75 / 32.0,
+        -3.0 / 32.0,
+        1e-9,
+        -1e-9,
+    ];
+    for (i, s) in special.iter().enumerate() {
+        xs.push(Vector::<T, D>::from_fn(|a, _| {
+            T::lit(s + 0.1 * a as f64 + 0.3 * i as f64)
+        }));
+    }
+    for i in 0..40 {
+        xs.push(Vector::<T, D>::from_fn(|a, _| {
+            let g = [0.618_034, 0.754_878, 0.569_840][a];
+            T::lit((i as f64 * g).fract() * 1.7 - 0.4)
+        }));
+    }
+    let layouts: [([f64; 2], usize); 3] = [([0.0, 0.0], 1), ([-0.25, 0.25], 2), ([0.0, 0.3], 2)];
+    for (offsets, grids) in layouts {
+        let off = [T::lit(offsets[0]), T::lit(offsets[1])];
+        for start in 0..xs.len() {
+            for len in [1, 2, 7, STENCIL_LANES] {
+                let end = (start + len).min(xs.len());
+                let run = &xs[start..end];
+                let mut fast = StencilLanes::<T, D>::default();
+                fast.fill::<K>(run, inv_h, off, grids);
+                let mut portable = StencilLanes::<T, D>::default();
+                portable.fill_lanes::<K>(run, inv_h, off, grids);
+                assert_eq!(fast.len(), run.len());
+                for (l, x) in run.iter().enumerate() {
+                    let want = if grids == 1 {
+                        let s = Stencil::new::<K>(x, inv_h, off[0]);
+                        [s, s]
+                    } else {
+                        Stencil::pair::<K>(x, inv_h, off[0], off[1])
+                    };
+                    for (got, name) in [
+                        (fast.get::<K>(l), "dispatched"),
+                        (portable.get::<K>(l), "portable"),
+                    ] {
+                        for k in 0..2 {
+                            assert!(
+                                same_bits(&got[k], &want[k]),
+                                "{} {} {name}: lane {l} of {start}..{end}, grid {k}, \
+                                 offsets {offsets:?}: {:?} vs {:?}",
+                                K::NAME,
+                                T::NAME,
+                                got[k],
+                                want[k]
+                            );
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn stencil_lanes_are_bit_identical_to_the_scalar_stencils() {
+    lanes_match_scalar::<Compact, f32, 3>();
+    lanes_match_scalar::<Compact, f64, 3>();
+    lanes_match_scalar::<Compact, f32, 2>();
+    lanes_match_scalar::<QuadraticBSpline, f32, 3>();
+    lanes_match_scalar::<QuadraticBSpline, f64, 2>();
+    lanes_match_scalar::<CubicBSpline, f32, 3>();
+    lanes_match_scalar::<Linear, f64, 3>();
+}

@@ -61,20 +61,75 @@ pub trait Real:
     fn to_f64(self) -> f64;
     /// `floor` as an integer index, for grid cells.
     fn floor_index(self) -> i32;
+    /// [`Self::floor_index`], same results, in a form that keeps loops over vector
+    /// lanes vectorised (LLVM scalarises the saturating float-to-int conversion of
+    /// `as`); slower one value at a time.
+    fn floor_index_lanes(self) -> i32;
     /// `true` when neither NaN nor infinite.
     fn is_finite_real(self) -> bool;
     /// `(sin 2πx, cos 2πx)` (`x` in turns). `f32`: a polynomial after exact range
     /// reduction, within 2 ulp of the correctly rounded values (tested), several
     /// times faster than libm's `sincosf`; `f64`: the standard library.
     fn sin_cos_turns(self) -> (Self, Self);
+    /// [`Self::sin_cos_turns`], same results, for loops over vector lanes (see
+    /// [`Self::floor_index_lanes`]).
+    fn sin_cos_turns_lanes(self) -> (Self, Self);
+}
+
+/// `x as i32` (truncation, saturating at the bounds, NaN → 0) in a form that loops
+/// over vector lanes keep vectorised: LLVM turns the saturating `as` into scalar
+/// conversions with compare-and-branch fix-ups, but this clamp, plain truncation and
+/// selects into vector instructions. `$hi` is the largest `$t` below 2³¹.
+macro_rules! saturating_to_i32 {
+    ($x:expr, $t:ty, $hi:expr) => {{
+        let x: $t = $x;
+        const LO: $t = -2_147_483_648.0;
+        const HI: $t = $hi;
+        let c = if x > LO { x } else { LO };
+        let c = if c < HI { c } else { HI };
+        // SAFETY: LO ≤ c ≤ HI, whose truncations lie in i32's range.
+        let i: i32 = unsafe { c.to_int_unchecked() };
+        let i = if x >= 2_147_483_648.0 { i32::MAX } else { i };
+        #[allow(clippy::eq_op)] // NaN test, written as a compare so it vectorises.
+        let nan = x != x;
+        if nan {
+            0
+        } else {
+            i
+        }
+    }};
+}
+
+/// `x as i32`, one value at a time.
+#[inline(always)]
+fn f32_as_i32(x: f32) -> i32 {
+    x as i32
+}
+
+/// `x as i32`, one value at a time.
+#[inline(always)]
+fn f64_as_i32(x: f64) -> i32 {
+    x as i32
+}
+
+/// [`saturating_to_i32`] for `f32`.
+#[inline(always)]
+fn f32_to_i32(x: f32) -> i32 {
+    saturating_to_i32!(x, f32, 2_147_483_520.0)
+}
+
+/// [`saturating_to_i32`] for `f64`.
+#[inline(always)]
+fn f64_to_i32(x: f64) -> i32 {
+    saturating_to_i32!(x, f64, 2_147_483_647.0)
 }
 
 /// Truncation toward −∞ without a libm call (baseline x86-64 has no `roundss`):
 /// exact for finite `x` with `|x| < 2³¹`.
 macro_rules! floor_to_i32 {
-    ($x:expr, $t:ty) => {{
+    ($x:expr, $t:ty, $to_i32:ident) => {{
         let x = $x;
-        let i = x as i32;
+        let i = $to_i32(x);
         if (i as $t) > x {
             i - 1
         } else {
@@ -96,7 +151,11 @@ impl Real for f32 {
     }
     #[inline(always)]
     fn floor_index(self) -> i32 {
-        floor_to_i32!(self, f32)
+        floor_to_i32!(self, f32, f32_as_i32)
+    }
+    #[inline(always)]
+    fn floor_index_lanes(self) -> i32 {
+        floor_to_i32!(self, f32, f32_to_i32)
     }
     #[inline(always)]
     fn is_finite_real(self) -> bool {
@@ -104,7 +163,11 @@ impl Real for f32 {
     }
     #[inline(always)]
     fn sin_cos_turns(self) -> (f32, f32) {
-        sin_cos_turns_f32(self)
+        sin_cos_turns_f32(self, f32_as_i32)
+    }
+    #[inline(always)]
+    fn sin_cos_turns_lanes(self) -> (f32, f32) {
+        sin_cos_turns_f32(self, f32_to_i32)
     }
 }
 
@@ -113,7 +176,7 @@ impl Real for f32 {
 /// `θ = 2πu ∈ [−π/4, π/4]` in Horner form (truncation error below 2e-9), then the
 /// quarter-turn rotation by `q mod 4`. For `|x| < 2²⁰` (positions in cells).
 #[inline(always)]
-fn sin_cos_turns_f32(x: f32) -> (f32, f32) {
+fn sin_cos_turns_f32(x: f32, to_i32: impl Fn(f32) -> i32) -> (f32, f32) {
     // Round to nearest by the 1.5·2²³ trick (exact for |4x| < 2²²; a libm call
     // otherwise on baseline x86-64).
     const MAGIC: f32 = 12_582_912.0;
@@ -129,7 +192,7 @@ fn sin_cos_turns_f32(x: f32) -> (f32, f32) {
     // Quarter turns q mod 4, branch-free (the quadrant is random per particle, so a
     // `match` mispredicts): odd q swaps sin and cos; sin flips sign for q ∈ {2, 3},
     // cos for q ∈ {1, 2}.
-    let q = (q4 as i32 & 3) as u32;
+    let q = (to_i32(q4) & 3) as u32;
     let swap = 0u32.wrapping_sub(q & 1);
     let (sb, cb) = (s.to_bits(), c.to_bits());
     let sin_bits = ((sb & !swap) | (cb & swap)) ^ (((q >> 1) & 1) << 31);
@@ -150,7 +213,11 @@ impl Real for f64 {
     }
     #[inline(always)]
     fn floor_index(self) -> i32 {
-        floor_to_i32!(self, f64)
+        floor_to_i32!(self, f64, f64_as_i32)
+    }
+    #[inline(always)]
+    fn floor_index_lanes(self) -> i32 {
+        floor_to_i32!(self, f64, f64_to_i32)
     }
     #[inline(always)]
     fn is_finite_real(self) -> bool {
@@ -159,6 +226,10 @@ impl Real for f64 {
     #[inline(always)]
     fn sin_cos_turns(self) -> (f64, f64) {
         (std::f64::consts::TAU * self).sin_cos()
+    }
+    #[inline(always)]
+    fn sin_cos_turns_lanes(self) -> (f64, f64) {
+        self.sin_cos_turns()
     }
 }
 
@@ -188,6 +259,8 @@ mod real_tests {
         for k in -20_000..120_000 {
             let x = k as f32 * (1.0 / 100_000.0) + 1e-7;
             let (s, c) = x.sin_cos_turns();
+            let (sl, cl) = x.sin_cos_turns_lanes();
+            assert_eq!((s.to_bits(), c.to_bits()), (sl.to_bits(), cl.to_bits()));
             let (s64, c64) = (std::f64::consts::TAU * x as f64).sin_cos();
             // Absolute error relative to 1 (the weights use 1 ± sin/2π): ulps of 1.
             let abs = ((s as f64 - s64).abs()).max((c as f64 - c64).abs()) as f32;
@@ -198,6 +271,44 @@ mod real_tests {
             }
         }
         assert!(worst <= 2.0, "worst error {worst} ulp of 1");
+    }
+
+    #[test]
+    fn vectorisable_conversions_equal_as_casts() {
+        let mut xs: Vec<f64> = vec![
+            0.0,
+            -0.0,
+            0.5,
+            -0.5,
+            0.999_999,
+            -1.0,
+            1e9,
+            -1e9,
+            2_147_483_520.0,
+            2_147_483_583.0,
+            2_147_483_647.0,
+            2_147_483_647.5,
+            2_147_483_648.0,
+            -2_147_483_648.0,
+            -2_147_483_648.5,
+            -2_147_483_649.0,
+            1e20,
+            -1e20,
+            f64::MAX,
+            f64::MIN,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NAN,
+            f64::MIN_POSITIVE,
+        ];
+        xs.extend((0..2000).map(|k| (k as f64 - 1000.0) * 1.37e6 + 0.25));
+        for x in xs {
+            assert_eq!(super::f64_to_i32(x), x as i32, "{x}");
+            let y = x as f32;
+            assert_eq!(super::f32_to_i32(y), y as i32, "{y}");
+            let z = f32::from_bits(y.to_bits().wrapping_sub(1));
+            assert_eq!(super::f32_to_i32(z), z as i32, "{z}");
+        }
     }
 
     #[test]
@@ -214,8 +325,10 @@ mod real_tests {
             1e6 + 0.5,
         ] {
             assert_eq!(x.floor_index(), x.floor() as i32, "{x}");
+            assert_eq!(x.floor_index_lanes(), x.floor_index(), "{x}");
             let y = x as f64;
             assert_eq!(y.floor_index(), y.floor() as i32, "{y}");
+            assert_eq!(y.floor_index_lanes(), y.floor_index(), "{y}");
         }
     }
 }

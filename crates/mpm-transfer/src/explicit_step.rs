@@ -9,7 +9,7 @@ use crate::separable::{row_shared, stencil_rows, AxisFactors, SliceSums, MAX_ROW
 use crate::{advect_checked, StepError};
 use mpm_constitutive::{Material, StateMut};
 use mpm_grid::{optional_chunks, BlockSparseGrid, Collider, GatherView, GridLayout, BLOCK};
-use mpm_kernels::{Kernel, Stencil, MAX_NODES_PER_AXIS};
+use mpm_kernels::{Kernel, Stencil, StencilLanes, MAX_NODES_PER_AXIS, STENCIL_LANES};
 use mpm_math::{flush_subnormals, try_inverse, zero_matrix, zero_vector, Matrix, Real, Vector};
 use rayon::prelude::*;
 use std::marker::PhantomData;
@@ -173,6 +173,43 @@ pub fn stencils<T: Real, const D: usize, K: Kernel, L: GridLayout>(
     } else {
         let s0 = Stencil::new::<K>(x, inv_h, T::lit(L::offset(0)));
         [s0, s0]
+    }
+}
+
+/// The offsets of layout `L`'s grids (one grid: its offset twice), as
+/// [`StencilLanes::fill`] takes them.
+#[inline(always)]
+fn layout_offsets<T: Real, L: GridLayout>() -> [T; 2] {
+    [T::lit(L::offset(0)), T::lit(L::offset(L::GRIDS - 1))]
+}
+
+/// The stencils of consecutive particles on every grid of layout `L` (as
+/// [`stencils`], bit for bit), evaluated [`STENCIL_LANES`] at a time in vector lanes
+/// ([`StencilLanes`]) and served one by one, for loops over particles in order.
+#[derive(Clone, Debug, Default)]
+pub struct StencilRuns<T: Real, const D: usize> {
+    lanes: StencilLanes<T, D>,
+    start: usize,
+}
+
+impl<T: Real, const D: usize> StencilRuns<T, D> {
+    /// The stencils of the particle at `xs[i]`; the lanes are refilled from `i` to at
+    /// most `end` when `i` is outside the current run.
+    #[inline(always)]
+    pub fn get<K: Kernel, L: GridLayout>(
+        &mut self,
+        xs: &[Vector<T, D>],
+        i: usize,
+        end: usize,
+        inv_h: T,
+    ) -> [Stencil<T, D>; 2] {
+        if !(self.start..self.start + self.lanes.len()).contains(&i) {
+            let last = end.min(i + STENCIL_LANES);
+            let offsets = layout_offsets::<T, L>();
+            self.lanes.fill::<K>(&xs[i..last], inv_h, offsets, L::GRIDS);
+            self.start = i;
+        }
+        self.lanes.get::<K>(i - self.start)
     }
 }
 
@@ -357,9 +394,9 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
                 // Elastic stresses of runs of particles of one material at a time, so
                 // that models with a vectorised path use it (the same bits).
                 let mut stresses = StressRuns::default();
+                let mut stencil_runs = StencilRuns::default();
                 for i in range.clone() {
-                    let x = p.x[i];
-                    let st = stencils::<T, D, K, L>(&x, inv_h);
+                    let st = stencil_runs.get::<K, L>(&p.x, i, range.end, inv_h);
                     let d_inv = if need_moment {
                         moment_inverse::<T, D, K, L>(&st, h)
                     } else {
