@@ -49,6 +49,19 @@ impl<T: Real, const D: usize> StencilLanes<T, D> {
         self.len
     }
 
+    /// The 1-D weights along axis `a` on grid `k` of every lane (one grid: `k` is
+    /// ignored), for computations that continue in lanes (the APIC moment matrix).
+    #[inline(always)]
+    pub fn lane_weights(&self, k: usize, a: usize) -> &LaneWeights<T, STENCIL_LANES> {
+        &self.weights[k.min(self.grids - 1)][a]
+    }
+
+    /// `frac` along axis `a` on grid `k` of every lane (see [`Self::lane_weights`]).
+    #[inline(always)]
+    pub fn lane_frac(&self, k: usize, a: usize) -> &[T; STENCIL_LANES] {
+        &self.frac[k.min(self.grids - 1)][a]
+    }
+
     /// True when no particle is held.
     #[inline(always)]
     pub fn is_empty(&self) -> bool {

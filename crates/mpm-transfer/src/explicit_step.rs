@@ -3,6 +3,7 @@
 //! → grid update (gravity, colliders) → G2P (velocity, affine matrix, `F`, position).
 
 use crate::diagnostics::Totals;
+use crate::moment_lanes::MomentInverseLanes;
 use crate::particles::{Particles, ReorderScratch};
 use crate::scheme::{Gathered, Needs, TransferScheme};
 use crate::separable::{row_shared, stencil_rows, AxisFactors, SliceSums, MAX_ROWS};
@@ -185,31 +186,63 @@ fn layout_offsets<T: Real, L: GridLayout>() -> [T; 2] {
 
 /// The stencils of consecutive particles on every grid of layout `L` (as
 /// [`stencils`], bit for bit), evaluated [`STENCIL_LANES`] at a time in vector lanes
-/// ([`StencilLanes`]) and served one by one, for loops over particles in order.
+/// ([`StencilLanes`]) and served one by one, for loops over particles in order; with
+/// [`Self::with_moment_inverse`], their `D_p⁻¹` too (as [`moment_inverse`]).
 #[derive(Clone, Debug, Default)]
 pub struct StencilRuns<T: Real, const D: usize> {
     lanes: StencilLanes<T, D>,
+    moments: Option<MomentInverseLanes<T, D>>,
     start: usize,
 }
 
 impl<T: Real, const D: usize> StencilRuns<T, D> {
-    /// The stencils of the particle at `xs[i]`; the lanes are refilled from `i` to at
-    /// most `end` when `i` is outside the current run.
+    /// Runs that also evaluate `D_p⁻¹` in lanes ([`Self::moment_inverse`]).
+    pub fn with_moment_inverse() -> Self {
+        Self {
+            moments: Some(MomentInverseLanes::default()),
+            ..Self::default()
+        }
+    }
+
+    /// The stencils of the particle at `xs[i]` (grid spacing `h`); the lanes are
+    /// refilled from `i` to at most `end` when `i` is outside the current run.
     #[inline(always)]
     pub fn get<K: Kernel, L: GridLayout>(
         &mut self,
         xs: &[Vector<T, D>],
         i: usize,
         end: usize,
-        inv_h: T,
+        h: T,
     ) -> [Stencil<T, D>; 2] {
         if !(self.start..self.start + self.lanes.len()).contains(&i) {
             let last = end.min(i + STENCIL_LANES);
             let offsets = layout_offsets::<T, L>();
-            self.lanes.fill::<K>(&xs[i..last], inv_h, offsets, L::GRIDS);
+            self.lanes
+                .fill::<K>(&xs[i..last], T::one() / h, offsets, L::GRIDS);
+            if let Some(m) = self.moments.as_mut() {
+                if constant_moment::<T, K, L>(h).is_none() {
+                    m.fill::<K, L>(&self.lanes, h);
+                }
+            }
             self.start = i;
         }
         self.lanes.get::<K>(i - self.start)
+    }
+
+    /// `D_p⁻¹` of particle `i` (in the run of the last [`Self::get`]; `None` when
+    /// singular), from the lanes where they hold it, else ([`Self::with_moment_inverse`] not asked,
+    /// or `D_p = c h² I`) from its stencils `st`.
+    #[inline(always)]
+    pub fn moment_inverse<K: Kernel, L: GridLayout>(
+        &self,
+        i: usize,
+        st: &[Stencil<T, D>; 2],
+        h: T,
+    ) -> Option<Matrix<T, D>> {
+        match (&self.moments, constant_moment::<T, K, L>(h)) {
+            (Some(m), None) => m.get(i - self.start),
+            _ => moment_inverse::<T, D, K, L>(st, h),
+        }
     }
 }
 
@@ -374,7 +407,6 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
         h: T,
         elastic_forces: bool,
     ) {
-        let inv_h = T::one() / h;
         let gradient_form = Self::gradient_form();
         let affine = scheme.stores_affine();
         let mls = scheme.mls_force() && !gradient_form;
@@ -394,11 +426,15 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
                 // Elastic stresses of runs of particles of one material at a time, so
                 // that models with a vectorised path use it (the same bits).
                 let mut stresses = StressRuns::default();
-                let mut stencil_runs = StencilRuns::default();
+                let mut stencil_runs = if need_moment {
+                    StencilRuns::with_moment_inverse()
+                } else {
+                    StencilRuns::default()
+                };
                 for i in range.clone() {
-                    let st = stencil_runs.get::<K, L>(&p.x, i, range.end, inv_h);
+                    let st = stencil_runs.get::<K, L>(&p.x, i, range.end, h);
                     let d_inv = if need_moment {
-                        moment_inverse::<T, D, K, L>(&st, h)
+                        stencil_runs.moment_inverse::<K, L>(i, &st, h)
                     } else {
                         None
                     };

@@ -13,6 +13,7 @@ pub mod distributed;
 pub mod explicit_step;
 mod flip;
 mod mls;
+mod moment_lanes;
 pub mod particles;
 mod pic;
 mod reference_step;
