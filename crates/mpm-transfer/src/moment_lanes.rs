@@ -7,11 +7,11 @@
 //! operations of [`moment_inverse`](crate::explicit_step::moment_inverse) (through
 //! [`Stencil::axis_moments`](mpm_kernels::Stencil::axis_moments) and
 //! [`try_inverse`](mpm_math::try_inverse)) in their order, so the results are the same
-//! bits (tested in `tests/optimised_matches_reference.rs`).
+//! bits (tested below).
 
 use mpm_grid::GridLayout;
 use mpm_kernels::{Kernel, StencilLanes, STENCIL_LANES};
-use mpm_math::{Matrix, Real};
+use mpm_math::{cofactor, determinant, Matrix, Real};
 
 const LANES: usize = STENCIL_LANES;
 
@@ -106,52 +106,19 @@ impl<T: Real, const D: usize> MomentInverseLanes<T, D> {
                 }
             }
         }
-        // `try_inverse`: the determinant and cofactors of `small.rs`, the singularity
-        // test `|det| > 16 ε max|dᵢⱼ|^D`, then `cofᵀ / det`.
-        let e = |r: usize, c: usize, l: usize| d[r][c][l];
-        let mut det = [T::zero(); LANES];
-        for (l, det) in det.iter_mut().enumerate() {
-            *det = if D == 2 {
-                e(0, 0, l) * e(1, 1, l) - e(0, 1, l) * e(1, 0, l)
-            } else {
-                e(0, 0, l) * (e(1, 1, l) * e(2, 2, l) - e(1, 2, l) * e(2, 1, l))
-                    - e(0, 1, l) * (e(1, 0, l) * e(2, 2, l) - e(1, 2, l) * e(2, 0, l))
-                    + e(0, 2, l) * (e(1, 0, l) * e(2, 1, l) - e(1, 1, l) * e(2, 0, l))
-            };
-        }
-        let mut scale = [T::zero(); LANES];
-        for (l, scale) in scale.iter_mut().enumerate() {
-            // nalgebra's `max` folds column-major with `max` (NaN-ignoring); the
-            // maximum of exact values does not depend on the order.
-            let mut m = e(0, 0, l).abs();
-            for c in 0..D {
-                for r in 0..D {
-                    m = m.max(e(r, c, l).abs());
-                }
-            }
-            *scale = m;
-        }
+        // `try_inverse` lane by lane, through the same `determinant` and `cofactor`:
+        // the singularity test `|det| > 16 ε max|dᵢⱼ|^D`, then `cofᵀ / det`.
         for l in 0..LANES {
-            let tiny = T::EPSILON * T::lit(16.0) * scale[l].powi(D as i32);
-            self.invertible[l] = det[l].abs() > tiny;
-        }
-        for i in 0..D {
-            for j in 0..D {
-                // Entry (i, j) of cofᵀ is cofactor (j, i).
-                for l in 0..LANES {
-                    let cof = if D == 2 {
-                        let sign = if (i + j) % 2 == 0 {
-                            T::one()
-                        } else {
-                            -T::one()
-                        };
-                        sign * e(1 - j, 1 - i, l)
-                    } else {
-                        let (j1, j2) = ((j + 1) % 3, (j + 2) % 3);
-                        let (i1, i2) = ((i + 1) % 3, (i + 2) % 3);
-                        e(j1, i1, l) * e(j2, i2, l) - e(j1, i2, l) * e(j2, i1, l)
-                    };
-                    self.inverse[i][j][l] = cof / det[l];
+            let m = Matrix::<T, D>::from_fn(|r, c| d[r][c][l]);
+            let det = determinant(&m);
+            let scale = m.abs().max();
+            let tiny = T::EPSILON * T::lit(16.0) * scale.powi(D as i32);
+            self.invertible[l] = det.abs() > tiny;
+            let cof = cofactor(&m);
+            for i in 0..D {
+                for j in 0..D {
+                    // Entry (i, j) of cofᵀ is cofactor (j, i).
+                    self.inverse[i][j][l] = cof[(j, i)] / det;
                 }
             }
         }
