@@ -280,6 +280,36 @@ impl<'a, T: Real, const D: usize> GatherView<'a, T, D> {
     pub fn velocity_old(&self, grid: usize, node: &[i32; D]) -> Vector<T, D> {
         self.velocity_old[self.flat(grid, node)]
     }
+    /// The home block's first node (node coordinates): the origin of
+    /// [`Self::for_each_dense`].
+    #[inline(always)]
+    pub fn origin(&self) -> [i32; D] {
+        self.origin
+    }
+    /// Visits the nodes `origin + [0, extent)^D` of grid `grid` (every node a stencil
+    /// from this home block can reach, for `extent ≤ 2·BLOCK`), axis 0 fastest:
+    /// `f(dense, flat)` with `dense = Σₐ jₐ extentᵃ` and `flat` the index for
+    /// [`Self::velocity_at`], so that a gather can copy them into a dense tile.
+    ///
+    /// # Panics
+    /// If `extent > 2·BLOCK`.
+    pub fn for_each_dense(&self, grid: usize, extent: usize, mut f: impl FnMut(usize, usize)) {
+        assert!(
+            extent <= 2 * BLOCK as usize,
+            "a home block reaches {} nodes per axis",
+            2 * BLOCK
+        );
+        let count = extent.pow(D as u32);
+        for dense in 0..count {
+            let mut node = self.origin;
+            let mut r = dense;
+            for n in node.iter_mut() {
+                *n += (r % extent) as i32;
+                r /= extent;
+            }
+            f(dense, self.flat(grid, &node));
+        }
+    }
 }
 
 /// Flat grid indices of a stencil's nodes, from [`GatherView::indexer`].
@@ -1085,5 +1115,45 @@ mod tests {
             assert_eq!(p[0], node[0] as f64 * m / (grid as f64 + 1.0));
         });
         assert_eq!(total, [72.0, 144.0]);
+    }
+
+    #[test]
+    fn dense_visit_finds_every_node_a_home_block_reaches() {
+        // Two home blocks side by side; every node they reach gets mass, and its
+        // velocity then encodes grid and node, so each flat index can be checked.
+        let cells = [[0, 0], [4, 0]];
+        let mut g = BlockSparseGrid::<f64, 2>::new(2);
+        g.bin(&cells);
+        g.scatter(6, false, false, |h, _, buf| {
+            let o = if h == 0 { [0, 0] } else { [4, 0] };
+            let z = Vector::<f64, 2>::zeros();
+            for dx in 0..6 {
+                for dy in 0..6 {
+                    buf.add(0, &[o[0] + dx, o[1] + dy], 1.0, &z, &z);
+                    buf.add(1, &[o[0] + dx, o[1] + dy], 1.0, &z, &z);
+                }
+            }
+        });
+        let code = |grid: usize, node: [i32; 2]| {
+            Vector::<f64, 2>::new(grid as f64, (node[0] + 100 * node[1]) as f64)
+        };
+        g.update(|grid, node, _, _, _| code(grid, node));
+        for home in 0..2 {
+            let view = g.gather_view(home);
+            let origin = view.origin();
+            assert_eq!(origin, [4 * home as i32, 0]);
+            for grid in 0..2 {
+                let mut seen = [false; 36];
+                view.for_each_dense(grid, 6, |dense, flat| {
+                    seen[dense] = true;
+                    let node = [
+                        origin[0] + (dense % 6) as i32,
+                        origin[1] + (dense / 6) as i32,
+                    ];
+                    assert_eq!(view.velocity_at(flat), code(grid, node), "{dense}");
+                });
+                assert!(seen.iter().all(|&s| s));
+            }
+        }
     }
 }

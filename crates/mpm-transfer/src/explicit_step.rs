@@ -3,14 +3,15 @@
 //! → grid update (gravity, colliders) → G2P (velocity, affine matrix, `F`, position).
 
 use crate::diagnostics::Totals;
+use crate::gather_lanes::{LaneGather, RunGather};
 use crate::moment_lanes::MomentInverseLanes;
 use crate::particles::{Particles, ReorderScratch};
-use crate::scheme::{Gathered, Needs, TransferScheme};
-use crate::separable::{row_shared, stencil_rows, AxisFactors, SliceSums, MAX_ROWS};
+use crate::scheme::{Gathered, TransferScheme};
+use crate::separable::{row_shared, stencil_rows, AxisFactors};
 use crate::{advect_checked, StepError};
 use mpm_constitutive::{Material, StateMut};
-use mpm_grid::{optional_chunks, BlockSparseGrid, Collider, GatherView, GridLayout, BLOCK};
-use mpm_kernels::{Kernel, Stencil, StencilLanes, MAX_NODES_PER_AXIS, STENCIL_LANES};
+use mpm_grid::{optional_chunks, BlockSparseGrid, Collider, GridLayout, BLOCK};
+use mpm_kernels::{Kernel, Stencil, StencilLanes, STENCIL_LANES};
 use mpm_math::{flush_subnormals, try_inverse, zero_matrix, zero_vector, Matrix, Real, Vector};
 use rayon::prelude::*;
 use std::marker::PhantomData;
@@ -597,58 +598,16 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
         scheme: &S,
         params: &StepParams<T, D>,
     ) -> Result<(), StepError> {
-        let h = params.h;
-        let inv_h = T::one() / h;
-        let gw = T::lit(L::gather_weight());
-        let rows = stencil_rows::<K, D>();
-        let gather = |view: &GatherView<'_, T, D>, xp: &Vector<T, D>, needs: &Needs| {
-            let st = stencils::<T, D, K, L>(xp, inv_h);
-            let mut g = Gathered::zeros();
-            for (k, s) in st.iter().enumerate().take(L::GRIDS) {
-                let ix = view.indexer(k, &s.base, K::NODES_PER_AXIS);
-                let f = AxisFactors::new::<K>(s, h);
-                let mut first = [zero_vector::<T, D>(); MAX_NODES_PER_AXIS];
-                let mut row_sums = [zero_vector::<T, D>(); MAX_ROWS];
-                for (r, rs) in row_sums.iter_mut().enumerate().take(rows) {
-                    // Row `r`: the nodes (j₀, j₁ … j_{D−1}) for every j₀.
-                    let mut j = Stencil::<T, D>::local_of::<K>(r * K::NODES_PER_AXIS);
-                    let w_row = f.row(&j).1;
-                    let mut vs = [zero_vector::<T, D>(); MAX_NODES_PER_AXIS];
-                    for (j0, vi) in vs.iter_mut().enumerate().take(K::NODES_PER_AXIS) {
-                        j[0] = j0;
-                        let idx = ix.index(&j);
-                        *vi = view.velocity_at(idx);
-                        if needs.old_velocity {
-                            let w = f.w[0][j0] * w_row;
-                            g.velocity_change += (*vi - view.velocity_old_at(idx)) * w;
-                        }
-                    }
-                    *rs = SliceSums::add_row::<K>(&mut first, &f, w_row, &vs);
-                }
-                let sums = SliceSums::from_rows::<K>(first, &f, &row_sums);
-                g.velocity += sums.velocity::<K>(&f);
-                if needs.affine_moment {
-                    g.affine_moment += sums.affine_moment::<K>(&f);
-                }
-                if needs.velocity_gradient {
-                    g.velocity_gradient += sums.velocity_gradient::<K>(&f);
-                }
-            }
-            g.velocity *= gw;
-            g.velocity_change *= gw;
-            g.affine_moment *= gw;
-            g.velocity_gradient *= gw;
-            if needs.moment_matrix {
-                g.moment_matrix = moment_matrix::<T, D, K, L>(&st, h);
-            }
-            g
+        let gather = LaneGather::<T, K, L> {
+            h: params.h,
+            _stencil: PhantomData,
         };
         self.update_particles_with(particles, materials, scheme, params, gather)
     }
 
     /// The particle side of G2P, shared by [`Self::grid_to_particle`] and the
-    /// reference step: `gather(view, x_p, needs)` returns the grid sums at one particle
-    /// (averaged over the grids); this updates velocity, affine matrix, material state
+    /// reference step: `gather` gives the grid sums (averaged over the grids) at runs
+    /// of particles of one home block (up to [`STENCIL_LANES`]); this updates velocity, affine matrix, material state
     /// and position, and reports the first (lowest id) particle whose state is not
     /// finite or not admissible for its model.
     pub(crate) fn update_particles_with<S, G>(
@@ -661,7 +620,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
     ) -> Result<(), StepError>
     where
         S: TransferScheme<T, D>,
-        G: Fn(&GatherView<'_, T, D>, &Vector<T, D>, &Needs) -> Gathered<T, D> + Sync,
+        G: RunGather<T, D>,
     {
         let dt = params.dt;
         let gradient_form = Self::gradient_form();
@@ -693,14 +652,13 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
         let n = x.len();
 
         let one = |p: usize,
+                   g: &Gathered<T, D>,
                    xp: &mut Vector<T, D>,
                    vp: &mut Vector<T, D>,
                    ap: Option<&mut Matrix<T, D>>,
                    mut state: StateMut<'_, T, D>|
          -> Option<StepError> {
-            let view = grid.gather_view(homes[p] as usize);
-            let g = gather(&view, xp, &needs);
-            let up = scheme.update(vp, &g, gradient_form);
+            let up = scheme.update(vp, g, gradient_form);
             *vp = up.velocity;
             if let (Some(a), Some(b)) = (ap, up.affine) {
                 *a = b;
@@ -743,16 +701,35 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
                     let mut qs = qs.iter_mut();
                     let mut js = js.iter_mut();
                     let mut ls = ls.iter_mut();
-                    for (k, (xp, vp)) in xs.iter_mut().zip(vs.iter_mut()).enumerate() {
-                        let state = StateMut {
-                            deformation: fs.next(),
-                            plastic: qs.next(),
-                            jacobian: js.next(),
-                            velocity_gradient: ls.next(),
-                        };
-                        if let Some(e) = one(c * PARTICLE_CHUNK + k, xp, vp, as_.next(), state) {
-                            worst = Some(e.lowest(worst));
+                    let mut gathered = [Gathered::zeros(); STENCIL_LANES];
+                    let mut scratch = gather.scratch();
+                    let start = c * PARTICLE_CHUNK;
+                    let homes = &homes[start..start + xs.len()];
+                    let mut s = 0;
+                    while s < xs.len() {
+                        // A run: up to STENCIL_LANES particles of one home block, every
+                        // sum gathered at the positions before advection.
+                        let home = homes[s];
+                        let mut e = s + 1;
+                        while e < xs.len() && e - s < STENCIL_LANES && homes[e] == home {
+                            e += 1;
                         }
+                        gather.gather(&mut scratch, grid, home, &xs[s..e], &needs, &mut gathered);
+                        for k in s..e {
+                            let state = StateMut {
+                                deformation: fs.next(),
+                                plastic: qs.next(),
+                                jacobian: js.next(),
+                                velocity_gradient: ls.next(),
+                            };
+                            let (xp, vp) = (&mut xs[k], &mut vs[k]);
+                            if let Some(e) =
+                                one(start + k, &gathered[k - s], xp, vp, as_.next(), state)
+                            {
+                                worst = Some(e.lowest(worst));
+                            }
+                        }
+                        s = e;
                     }
                     worst
                 })

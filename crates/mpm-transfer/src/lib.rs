@@ -12,6 +12,7 @@ pub mod diagnostics;
 pub mod distributed;
 pub mod explicit_step;
 mod flip;
+mod gather_lanes;
 mod mls;
 mod moment_lanes;
 pub mod particles;

@@ -3,11 +3,12 @@
 //! against (to round-off in f64), and the readable statement of what they compute.
 
 use crate::explicit_step::{ExplicitStepper, StepParams};
+use crate::gather_lanes::RunGather;
 use crate::particles::Particles;
 use crate::scheme::{Gathered, Needs, TransferScheme};
 use crate::StepError;
 use mpm_constitutive::Material;
-use mpm_grid::{GatherView, GridLayout};
+use mpm_grid::{BlockSparseGrid, GatherView, GridLayout};
 use mpm_kernels::{Kernel, Stencil};
 use mpm_math::{try_inverse, Matrix, Real, Vector};
 
@@ -173,6 +174,31 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
             g.moment_matrix *= gw;
             g
         };
-        self.update_particles_with(particles, materials, scheme, params, gather)
+        self.update_particles_with(particles, materials, scheme, params, OneByOne(gather))
+    }
+}
+
+/// A gather of one particle at a time, `f(view, x_p, needs)`, as a [`RunGather`].
+struct OneByOne<F>(F);
+
+impl<T: Real, const D: usize, F> RunGather<T, D> for OneByOne<F>
+where
+    F: Fn(&GatherView<'_, T, D>, &Vector<T, D>, &Needs) -> Gathered<T, D> + Sync,
+{
+    type Scratch = ();
+    fn scratch(&self) {}
+    fn gather(
+        &self,
+        _: &mut (),
+        grid: &BlockSparseGrid<T, D>,
+        home: u32,
+        xs: &[Vector<T, D>],
+        needs: &Needs,
+        out: &mut [Gathered<T, D>],
+    ) {
+        let view = grid.gather_view(home as usize);
+        for (o, xp) in out.iter_mut().zip(xs) {
+            *o = (self.0)(&view, xp, needs);
+        }
     }
 }

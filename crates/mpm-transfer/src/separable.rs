@@ -10,15 +10,16 @@
 //!   `A₀[j] = w₀[j] (c₀ + r₀[j] C₀) + g₀[j] S₀`, `Aₐ[j] = wₐ[j] rₐ[j] Cₐ + gₐ[j] Sₐ`
 //!   (`Cₐ`, `Sₐ` the columns), since `e₀ w₀ = w`, `eₐ wₐ rₐ = w rₐ` and
 //!   `eₐ gₐ = ∇w_a`.
-//! - G2P (`SliceSums`, a row of nodes along axis 0 at a time): with `Pₐ[j] = Σ_{nodes with jₐ = j} eₐ vᵢ`,
-//!   `Σ w vᵢ = Σⱼ w₀[j] P₀[j]`, the column `a` of `Σ w vᵢ rᵀ` is `Σⱼ wₐ[j] rₐ[j] Pₐ[j]`
-//!   and that of `Σ vᵢ ∇wᵀ` is `Σⱼ gₐ[j] Pₐ[j]`.
+//! - G2P (in lanes of particles, [`crate::gather_lanes`]): with the slice sums
+//!   `Pₐ[j] = Σ_{nodes with jₐ = j} eₐ vᵢ`, `Σ w vᵢ = Σⱼ w₀[j] P₀[j]`, the column `a`
+//!   of `Σ w vᵢ rᵀ` is `Σⱼ wₐ[j] rₐ[j] Pₐ[j]` and that of `Σ vᵢ ∇wᵀ` is
+//!   `Σⱼ gₐ[j] Pₐ[j]`.
 //!
 //! Exactly the sums of the node-by-node form in another order (round-off apart:
 //! `tests/optimised_matches_reference.rs`).
 
 use mpm_kernels::{Kernel, Stencil, MAX_NODES_PER_AXIS};
-use mpm_math::{zero_matrix, zero_vector, Matrix, Real, Vector};
+use mpm_math::{zero_vector, Matrix, Real, Vector};
 
 /// Per-axis factors of one stencil: weights `w`, physical derivatives `g = N'/h` and
 /// offsets `r = (j − frac)·h`.
@@ -129,99 +130,4 @@ pub(crate) const fn stencil_rows<K: Kernel, const D: usize>() -> usize {
     let n = K::NODES_PER_AXIS.pow(D as u32 - 1);
     assert!(n <= MAX_ROWS, "at most 3 dimensions");
     n
-}
-
-/// The slice sums `Pₐ[j]` of a gather (module docs).
-#[derive(Clone, Copy, Debug)]
-pub(crate) struct SliceSums<T: Real, const D: usize> {
-    p: [[Vector<T, D>; MAX_NODES_PER_AXIS]; D],
-}
-
-impl<T: Real, const D: usize> SliceSums<T, D> {
-    #[inline(always)]
-    pub fn zeros() -> Self {
-        SliceSums {
-            p: [[zero_vector::<T, D>(); MAX_NODES_PER_AXIS]; D],
-        }
-    }
-
-    /// Adds one stencil row (see [`AxisFactors::row`]) to the first-axis sums: the
-    /// row weight `W` times each node's velocity to `P₀[j₀]` (`first`, kept by the
-    /// caller in a local array so that it can live in registers). Returns the row's
-    /// `R = Σ_{j₀} w₀[j₀] vᵢ`, which [`Self::from_rows`] spreads over the other axes
-    /// once every row is gathered (kept out of the gather loop: its updates
-    /// `Pₐ[jₐ] += Xₐ R` go to a position that depends on the row).
-    #[inline(always)]
-    pub fn add_row<K: Kernel>(
-        first: &mut [Vector<T, D>; MAX_NODES_PER_AXIS],
-        f: &AxisFactors<T, D>,
-        w_row: T,
-        velocities: &[Vector<T, D>; MAX_NODES_PER_AXIS],
-    ) -> Vector<T, D> {
-        let mut r = zero_vector::<T, D>();
-        for j0 in 0..K::NODES_PER_AXIS {
-            first[j0] += velocities[j0] * w_row;
-            r += velocities[j0] * f.w[0][j0];
-        }
-        r
-    }
-
-    /// The slice sums from the rows' first-axis sums `first` and row sums `R`
-    /// ([`Self::add_row`], rows in [`Stencil::local_of`] order): `P₀ = first`,
-    /// `Pₐ[jₐ] = Σ_rows Xₐ R` for `a ≥ 1`, two vector updates per node in all.
-    #[inline(always)]
-    pub fn from_rows<K: Kernel>(
-        first: [Vector<T, D>; MAX_NODES_PER_AXIS],
-        f: &AxisFactors<T, D>,
-        row_sums: &[Vector<T, D>; MAX_ROWS],
-    ) -> Self {
-        let mut sums = Self::zeros();
-        sums.p[0] = first;
-        for (r, rs) in row_sums.iter().enumerate().take(stencil_rows::<K, D>()) {
-            let j = Stencil::<T, D>::local_of::<K>(r * K::NODES_PER_AXIS);
-            let (x, _) = f.row(&j);
-            for a in 1..D {
-                sums.p[a][j[a]] += rs * x[a];
-            }
-        }
-        sums
-    }
-
-    /// `Σ w vᵢ`.
-    #[inline(always)]
-    pub fn velocity<K: Kernel>(&self, f: &AxisFactors<T, D>) -> Vector<T, D> {
-        let mut v = zero_vector::<T, D>();
-        for j in 0..K::NODES_PER_AXIS {
-            v += self.p[0][j] * f.w[0][j];
-        }
-        v
-    }
-
-    /// `Σ w vᵢ rᵀ`.
-    #[inline(always)]
-    pub fn affine_moment<K: Kernel>(&self, f: &AxisFactors<T, D>) -> Matrix<T, D> {
-        let mut b = zero_matrix::<T, D>();
-        for a in 0..D {
-            let mut col = zero_vector::<T, D>();
-            for j in 0..K::NODES_PER_AXIS {
-                col += self.p[a][j] * (f.w[a][j] * f.r[a][j]);
-            }
-            b.set_column(a, &col);
-        }
-        b
-    }
-
-    /// `Σ vᵢ ∇wᵀ`.
-    #[inline(always)]
-    pub fn velocity_gradient<K: Kernel>(&self, f: &AxisFactors<T, D>) -> Matrix<T, D> {
-        let mut l = zero_matrix::<T, D>();
-        for a in 0..D {
-            let mut col = zero_vector::<T, D>();
-            for j in 0..K::NODES_PER_AXIS {
-                col += self.p[a][j] * f.g[a][j];
-            }
-            l.set_column(a, &col);
-        }
-        l
-    }
 }

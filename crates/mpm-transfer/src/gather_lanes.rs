@@ -1,0 +1,366 @@
+//! G2P's grid sums of up to [`STENCIL_LANES`] particles of one home block at once.
+//!
+//! One particle at a time, a gather is a node index and a load per node, then a chain
+//! of scalar multiply–adds on 3-vectors. Here a run of particles shares its home
+//! block's node velocities, copied once into a dense tile ([`GatherScratch`]), so a
+//! lane's nodes sit at fixed offsets from its first one: one vector gather per node
+//! and component loads them for every lane, and every step of the arithmetic runs
+//! on all lanes together.
+//!
+//! The arithmetic is the tensor-product form of [`crate::separable`], a row of
+//! nodes along axis 0 at a time: with the excluded products `eₐ = Π_{b≠a} w_b[j_b]`
+//! and the slice sums `Pₐ[j] = Σ_{nodes with jₐ = j} eₐ vᵢ`, `Σ w vᵢ = Σⱼ w₀[j] P₀[j]`,
+//! column `a` of `B = Σ w vᵢ rᵀ` is `Σⱼ wₐ[j] rₐ[j] Pₐ[j]` and that of `Σ vᵢ ∇wᵀ` is
+//! `Σⱼ gₐ[j] Pₐ[j]`. `P₀` is summed row by row (`W vᵢ` with the row weight
+//! `W = Π_{b≥1} w_b[j_b]`); the other `Pₐ` from each row's `R = Σ_{j₀} w₀[j₀] vᵢ`
+//! times `Xₐ = Π_{b≥1, b≠a} w_b[j_b]`. Every lane does the same operations in the
+//! same order on every target (Rust never contracts into FMA), and
+//! `tests/optimised_matches_reference.rs` checks the results against the
+//! node-by-node reference gather.
+
+use crate::explicit_step::{moment_matrix, ExplicitStepper};
+use crate::scheme::{Gathered, Needs};
+use crate::separable::{stencil_rows, MAX_ROWS};
+use mpm_grid::{BlockSparseGrid, GridLayout, BLOCK};
+use mpm_kernels::{Kernel, Stencil, StencilLanes, MAX_NODES_PER_AXIS, STENCIL_LANES};
+use mpm_math::{Real, Vector};
+use std::marker::PhantomData;
+
+const LANES: usize = STENCIL_LANES;
+
+/// A value per lane.
+type Lanes<T> = [T; LANES];
+
+/// Nodes per axis a home block's stencils reach at most: the block, one more for
+/// the second grid, three more for four nodes per axis.
+const MAX_EXTENT: usize = BLOCK as usize + 1 + (MAX_NODES_PER_AXIS - 1);
+
+/// Nodes of a dense tile of [`MAX_EXTENT`] per axis (in up to 3 dimensions).
+const TILE_NODES: usize = MAX_EXTENT * MAX_EXTENT * MAX_EXTENT;
+
+/// How G2P gathers the grid sums at its particles, a run at a time
+/// ([`ExplicitStepper::update_particles_with`]).
+pub(crate) trait RunGather<T: Real, const D: usize>: Sync {
+    /// Work space of one parallel task, reused across its runs.
+    type Scratch;
+    /// A fresh work space.
+    fn scratch(&self) -> Self::Scratch;
+    /// The sums (averaged over the grids) at the particles at `xs`, at most
+    /// [`STENCIL_LANES`] consecutive ones, all of home block `home`, into
+    /// `out[..xs.len()]`.
+    fn gather(
+        &self,
+        scratch: &mut Self::Scratch,
+        grid: &BlockSparseGrid<T, D>,
+        home: u32,
+        xs: &[Vector<T, D>],
+        needs: &Needs,
+        out: &mut [Gathered<T, D>],
+    );
+}
+
+/// The gather of kernel `K` on layout `G`, [`STENCIL_LANES`] particles at a time
+/// (module docs), with grid spacing `h`.
+pub(crate) struct LaneGather<T, K, G> {
+    pub h: T,
+    pub _stencil: PhantomData<(K, G)>,
+}
+
+/// [`LaneGather`]'s work space: the stencils of a run, and the node velocities of
+/// the home block of the last run, dense and component-major (`velocity[k][c][n]`
+/// for node `n` of grid `k`), so that a lane finds a node at a fixed offset from its
+/// first one.
+pub(crate) struct GatherScratch<T, const D: usize> {
+    stencils: StencilLanes<T, D>,
+    velocity: [[[T; TILE_NODES]; D]; 2],
+    velocity_old: [[[T; TILE_NODES]; D]; 2],
+    home: Option<u32>,
+}
+
+impl<T: Real, const D: usize, K: Kernel, G: GridLayout> RunGather<T, D> for LaneGather<T, K, G> {
+    type Scratch = GatherScratch<T, D>;
+
+    fn scratch(&self) -> Self::Scratch {
+        GatherScratch {
+            stencils: StencilLanes::default(),
+            velocity: [[[T::zero(); TILE_NODES]; D]; 2],
+            velocity_old: [[[T::zero(); TILE_NODES]; D]; 2],
+            home: None,
+        }
+    }
+
+    #[inline(always)]
+    fn gather(
+        &self,
+        scratch: &mut Self::Scratch,
+        grid: &BlockSparseGrid<T, D>,
+        home: u32,
+        xs: &[Vector<T, D>],
+        needs: &Needs,
+        out: &mut [Gathered<T, D>],
+    ) {
+        let h = self.h;
+        let extent = ExplicitStepper::<T, D, K, G>::buffer_extent();
+        let view = grid.gather_view(home as usize);
+        if scratch.home != Some(home) {
+            for k in 0..G::GRIDS {
+                let (tile, tile_old) = (&mut scratch.velocity[k], &mut scratch.velocity_old[k]);
+                view.for_each_dense(k, extent, |dense, flat| {
+                    let v = view.velocity_at(flat);
+                    for c in 0..D {
+                        tile[c][dense] = v[c];
+                    }
+                    if needs.old_velocity {
+                        let v = view.velocity_old_at(flat);
+                        for c in 0..D {
+                            tile_old[c][dense] = v[c];
+                        }
+                    }
+                });
+            }
+            scratch.home = Some(home);
+        }
+        let offsets = [T::lit(G::offset(0)), T::lit(G::offset(G::GRIDS - 1))];
+        scratch
+            .stencils
+            .fill::<K>(xs, T::one() / h, offsets, G::GRIDS);
+        let origin = view.origin();
+        let args = (&*scratch, origin, extent, xs.len(), needs, h);
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::is_x86_feature_detected!("avx512f") {
+                // SAFETY: the CPU has the feature just detected.
+                return unsafe { sums_avx512::<T, D, K, G>(args, out) };
+            }
+            if std::is_x86_feature_detected!("avx2") {
+                // SAFETY: as above.
+                return unsafe { sums_avx2::<T, D, K, G>(args, out) };
+            }
+        }
+        sums_lanes::<T, D, K, G>(args, out);
+    }
+}
+
+/// What [`sums_lanes`] reads: the filled scratch, the tile's origin and extent, the
+/// particles in the run, what to gather and the grid spacing.
+type SumArgs<'a, T, const D: usize> = (
+    &'a GatherScratch<T, D>,
+    [i32; D],
+    usize,
+    usize,
+    &'a Needs,
+    T,
+);
+
+/// [`sums_lanes`] compiled for AVX-512 (same bits as any other target).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+fn sums_avx512<T: Real, const D: usize, K: Kernel, G: GridLayout>(
+    args: SumArgs<'_, T, D>,
+    out: &mut [Gathered<T, D>],
+) {
+    sums_lanes::<T, D, K, G>(args, out);
+}
+
+/// [`sums_lanes`] compiled for AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn sums_avx2<T: Real, const D: usize, K: Kernel, G: GridLayout>(
+    args: SumArgs<'_, T, D>,
+    out: &mut [Gathered<T, D>],
+) {
+    sums_lanes::<T, D, K, G>(args, out);
+}
+
+/// `a[c][l] += b[c][l] * s[l]` for every component `c` and lane `l`.
+#[inline(always)]
+fn add_scaled<T: Real, const D: usize>(a: &mut [Lanes<T>; D], b: &[Lanes<T>; D], s: &Lanes<T>) {
+    for c in 0..D {
+        for l in 0..LANES {
+            a[c][l] += b[c][l] * s[l];
+        }
+    }
+}
+
+/// The velocities at tile node `first[l] + offset` of every lane `l`, lane-major:
+/// one vector gather per component where the target has one. The index is clamped
+/// into the tile, so no lane branches; only a non-finite position (whose step fails
+/// anyway) has nodes outside it.
+#[inline(always)]
+fn load_lanes<T: Real, const D: usize>(
+    tile: &[[T; TILE_NODES]; D],
+    first: &[isize; LANES],
+    offset: isize,
+) -> [Lanes<T>; D] {
+    let mut v = [[T::zero(); LANES]; D];
+    for c in 0..D {
+        for l in 0..LANES {
+            let node = (first[l] + offset).clamp(0, TILE_NODES as isize - 1);
+            v[c][l] = tile[c][node as usize];
+        }
+    }
+    v
+}
+
+/// The portable lane code behind [`LaneGather::gather`]. Lanes past the run hold
+/// copies of its last particle (their sums are never read).
+#[inline(always)]
+fn sums_lanes<T: Real, const D: usize, K: Kernel, G: GridLayout>(
+    (scratch, origin, extent, len, needs, h): SumArgs<'_, T, D>,
+    out: &mut [Gathered<T, D>],
+) {
+    let stencils = &scratch.stencils;
+    let n = K::NODES_PER_AXIS;
+    let rows = stencil_rows::<K, D>();
+    let zero = T::zero();
+    let inv_h = T::one() / h;
+    let mut strides = [1usize; D];
+    for a in 1..D {
+        strides[a] = strides[a - 1] * extent;
+    }
+    let mut velocity = [[zero; LANES]; D];
+    let mut velocity_change = [[zero; LANES]; D];
+    let mut affine_moment = [[[zero; LANES]; D]; D];
+    let mut velocity_gradient = [[[zero; LANES]; D]; D];
+    for k in 0..G::GRIDS {
+        let (tile, tile_old) = (&scratch.velocity[k], &scratch.velocity_old[k]);
+        // Each lane's first node in the tile.
+        let mut first = [0isize; LANES];
+        for a in 0..D {
+            let base = &stencils.lane_weights(k, a).base;
+            for l in 0..LANES {
+                first[l] += (base[l] - origin[a]) as isize * strides[a] as isize;
+            }
+        }
+        // `AxisFactors::new`: weights `w`, derivatives `g = N'/h`, offsets `r`.
+        let mut w = [[[zero; LANES]; MAX_NODES_PER_AXIS]; D];
+        let mut g = [[[zero; LANES]; MAX_NODES_PER_AXIS]; D];
+        let mut r = [[[zero; LANES]; MAX_NODES_PER_AXIS]; D];
+        for a in 0..D {
+            let weights = stencils.lane_weights(k, a);
+            let frac = stencils.lane_frac(k, a);
+            for j in 0..n {
+                for l in 0..LANES {
+                    w[a][j][l] = weights.w[j][l];
+                    g[a][j][l] = weights.dw[j][l] * inv_h;
+                    r[a][j][l] = (T::lit(j as f64) - frac[l]) * h;
+                }
+            }
+        }
+        // `P₀` and the row sums `R`, row by row; FLIP's `Σ w (vᵢ − vᵢ_old)` with them.
+        let mut first_axis = [[[zero; LANES]; D]; MAX_NODES_PER_AXIS];
+        let mut row_sums = [[[zero; LANES]; D]; MAX_ROWS];
+        for (row, rs) in row_sums.iter_mut().enumerate().take(rows) {
+            let j = Stencil::<T, D>::local_of::<K>(row * n);
+            let (_, w_row) = excluded_from_row(&w, &j);
+            let row_offset: usize = (1..D).map(|a| j[a] * strides[a]).sum();
+            for j0 in 0..n {
+                // The node velocities, from the tile.
+                let offset = (row_offset + j0) as isize;
+                let v = load_lanes(tile, &first, offset);
+                if needs.old_velocity {
+                    let v_old = load_lanes(tile_old, &first, offset);
+                    for c in 0..D {
+                        for l in 0..LANES {
+                            let wn = w[0][j0][l] * w_row[l];
+                            velocity_change[c][l] += (v[c][l] - v_old[c][l]) * wn;
+                        }
+                    }
+                }
+                add_scaled(&mut first_axis[j0], &v, &w_row);
+                add_scaled(rs, &v, &w[0][j0]);
+            }
+        }
+        // `Pₐ[jₐ] = Σ_rows Xₐ R` for `a ≥ 1`.
+        let mut p = [[[[zero; LANES]; D]; MAX_NODES_PER_AXIS]; D];
+        p[0] = first_axis;
+        for (row, rs) in row_sums.iter().enumerate().take(rows) {
+            let j = Stencil::<T, D>::local_of::<K>(row * n);
+            let (x, _) = excluded_from_row(&w, &j);
+            for a in 1..D {
+                add_scaled(&mut p[a][j[a]], rs, &x[a]);
+            }
+        }
+        // `Σ w vᵢ`, `B` and `Σ vᵢ ∇wᵀ` of this grid, each added to
+        // the sums over the grids.
+        let mut vel = [[zero; LANES]; D];
+        for j in 0..n {
+            add_scaled(&mut vel, &p[0][j], &w[0][j]);
+        }
+        for c in 0..D {
+            for l in 0..LANES {
+                velocity[c][l] += vel[c][l];
+            }
+        }
+        for a in 0..D {
+            if needs.affine_moment {
+                let mut col = [[zero; LANES]; D];
+                for j in 0..n {
+                    let mut wr = [zero; LANES];
+                    for l in 0..LANES {
+                        wr[l] = w[a][j][l] * r[a][j][l];
+                    }
+                    add_scaled(&mut col, &p[a][j], &wr);
+                }
+                for c in 0..D {
+                    for l in 0..LANES {
+                        affine_moment[c][a][l] += col[c][l];
+                    }
+                }
+            }
+            if needs.velocity_gradient {
+                let mut col = [[zero; LANES]; D];
+                for j in 0..n {
+                    add_scaled(&mut col, &p[a][j], &g[a][j]);
+                }
+                for c in 0..D {
+                    for l in 0..LANES {
+                        velocity_gradient[c][a][l] += col[c][l];
+                    }
+                }
+            }
+        }
+    }
+    // The average over the grids, and one `Gathered` per particle.
+    let gw = T::lit(G::gather_weight());
+    for (l, o) in out.iter_mut().enumerate().take(len) {
+        *o = Gathered::zeros();
+        for c in 0..D {
+            o.velocity[c] = velocity[c][l] * gw;
+            o.velocity_change[c] = velocity_change[c][l] * gw;
+            for a in 0..D {
+                o.affine_moment[(c, a)] = affine_moment[c][a][l] * gw;
+                o.velocity_gradient[(c, a)] = velocity_gradient[c][a][l] * gw;
+            }
+        }
+        if needs.moment_matrix {
+            o.moment_matrix = moment_matrix::<T, D, K, G>(&stencils.get::<K>(l), h);
+        }
+    }
+}
+
+/// `AxisFactors::row` in lanes: over the axes `1..D` of node `j`, the excluded
+/// products `Xₐ = Π_{b≥1, b≠a} w_b[j_b]` and the row weight `W = Π_{b≥1} w_b[j_b]`,
+/// by the same prefix and suffix products.
+#[inline(always)]
+fn excluded_from_row<T: Real, const D: usize>(
+    w: &[[Lanes<T>; MAX_NODES_PER_AXIS]; D],
+    j: &[usize; D],
+) -> ([Lanes<T>; D], Lanes<T>) {
+    let mut e = [[T::one(); LANES]; D];
+    let mut prefix = [T::one(); LANES];
+    for a in 1..D {
+        e[a] = prefix;
+        for l in 0..LANES {
+            prefix[l] *= w[a][j[a]][l];
+        }
+    }
+    let mut suffix = [T::one(); LANES];
+    for a in (1..D).rev() {
+        for l in 0..LANES {
+            e[a][l] *= suffix[l];
+            suffix[l] *= w[a][j[a]][l];
+        }
+    }
+    (e, prefix)
+}
