@@ -299,15 +299,36 @@ impl<'a, T: Real, const D: usize> GatherView<'a, T, D> {
             "a home block reaches {} nodes per axis",
             2 * BLOCK
         );
-        let count = extent.pow(D as u32);
-        for dense in 0..count {
-            let mut node = self.origin;
-            let mut r = dense;
-            for n in node.iter_mut() {
-                *n += (r % extent) as i32;
-                r /= extent;
+        // `flat_node_index`'s block code and in-block offset, per axis and offset
+        // from the origin, worked out once.
+        let mut code = [[0usize; 2 * BLOCK as usize]; D];
+        let mut local = [[0usize; 2 * BLOCK as usize]; D];
+        let mut stride = 1usize;
+        for a in 0..D {
+            for r in 0..extent {
+                code[a][r] = (r >> 2) << a;
+                local[a][r] = (r & 3) * stride;
             }
-            f(dense, self.flat(grid, &node));
+            stride *= BLOCK as usize;
+        }
+        let mut j = [0usize; D];
+        for dense in 0..extent.pow(D as u32) {
+            let (mut c, mut l) = (0usize, 0usize);
+            for a in 0..D {
+                c |= code[a][j[a]];
+                l += local[a][j[a]];
+            }
+            let block = self.neighbors[c] as usize;
+            debug_assert!(block != NONE as usize);
+            f(dense, grid * self.grid_stride + block * stride + l);
+            // The next node, axis 0 fastest.
+            for ja in j.iter_mut() {
+                *ja += 1;
+                if *ja < extent {
+                    break;
+                }
+                *ja = 0;
+            }
         }
     }
 }

@@ -6,13 +6,14 @@ use crate::diagnostics::Totals;
 use crate::gather_lanes::{LaneGather, RunGather};
 use crate::moment_lanes::MomentInverseLanes;
 use crate::particles::{Particles, ReorderScratch};
+use crate::scatter_lanes::ScatterLanes;
 use crate::scheme::{Gathered, TransferScheme};
-use crate::separable::{row_shared, stencil_rows, AxisFactors};
+use crate::separable::AxisFactors;
 use crate::{advect_checked, StepError};
 use mpm_constitutive::{Material, StateMut};
 use mpm_grid::{optional_chunks, BlockSparseGrid, Collider, GridLayout, BLOCK};
 use mpm_kernels::{Kernel, Stencil, StencilLanes, STENCIL_LANES};
-use mpm_math::{flush_subnormals, try_inverse, zero_matrix, zero_vector, Matrix, Real, Vector};
+use mpm_math::{flush_subnormals, try_inverse, zero_matrix, Matrix, Real, Vector};
 use rayon::prelude::*;
 use std::marker::PhantomData;
 use std::ops::Range;
@@ -197,6 +198,11 @@ pub struct StencilRuns<T: Real, const D: usize> {
 }
 
 impl<T: Real, const D: usize> StencilRuns<T, D> {
+    /// The lanes of the current run.
+    pub(crate) fn lanes(&self) -> &StencilLanes<T, D> {
+        &self.lanes
+    }
+
     /// Runs that also evaluate `D_p⁻¹` in lanes ([`Self::moment_inverse`]).
     pub fn with_moment_inverse() -> Self {
         Self {
@@ -416,14 +422,12 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
         let viscous = particles.needs.velocity_gradient && !gradient_form;
         let need_moment = (affine || mls || viscous) && !gradient_form;
         let separate = scheme.needs(gradient_form).old_velocity;
-        let rows = stencil_rows::<K, D>();
         let p = particles;
         self.grid.scatter_local(
             Self::buffer_extent(),
             separate,
             false,
             |_home, range, buf| {
-                let strides = buf.strides();
                 // Elastic stresses of runs of particles of one material at a time, so
                 // that models with a vectorised path use it (the same bits).
                 let mut stresses = StressRuns::default();
@@ -432,82 +436,56 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
                 } else {
                     StencilRuns::default()
                 };
-                for i in range.clone() {
-                    let st = stencil_runs.get::<K, L>(&p.x, i, range.end, h);
-                    let d_inv = if need_moment {
-                        stencil_runs.moment_inverse::<K, L>(i, &st, h)
-                    } else {
-                        None
-                    };
-                    let c = scheme.p2g_affine(p.affine.get(i), d_inv.as_ref());
-                    let model = &materials[p.material[i] as usize];
-                    let scale = -p.volume[i] * dt;
-                    let zero = zero_matrix::<T, D>();
-                    let (elastic, viscous_part) = match (viscous, elastic_forces) {
-                        (true, true) => (
-                            stresses.get(p, materials, i, range.end, true),
-                            model.viscous_stress(&p.state(i)),
-                        ),
-                        (true, false) => (zero, model.viscous_stress(&p.state(i))),
-                        (false, true) => (stresses.get(p, materials, i, range.end, false), zero),
-                        (false, false) => (zero, zero),
-                    };
-                    let mut stress = elastic * scale;
-                    // The part applied with the MLS gradient `w D⁻¹ r`.
-                    let mut mls_part = viscous_part * scale;
-                    if mls {
-                        mls_part += stress;
-                        stress = zero_matrix::<T, D>();
-                    }
-                    let mls_stress = d_inv.map(|di| mls_part * di);
-                    let m = p.mass[i];
-                    let mv = p.v[i] * m;
-                    let mc = c * m;
-                    // `mls_stress · r w` has the form of the affine term `C r w`.
-                    let ms = mls_stress.unwrap_or(zero);
-                    for (k, s) in st.iter().enumerate().take(L::GRIDS) {
-                        let first = buf.index_of(k, &s.base);
-                        let f = AxisFactors::new::<K>(s, h);
-                        let index = |j: &[usize; D]| {
-                            let mut idx = first;
-                            for a in 0..D {
-                                idx += j[a] * strides[a];
-                            }
-                            idx
-                        };
-                        // One stencil row (j₀ free) at a time (`row_shared`); FLIP keeps
-                        // the impulse apart in a second table.
-                        let (momentum, impulse) = if separate {
-                            let ti = f.scatter_tables::<K>(&zero_vector::<T, D>(), &ms, &stress);
-                            (f.scatter_tables::<K>(&mv, &mc, &zero), Some(ti))
+                let mut lanes = ScatterLanes::default();
+                let mut run = range.start;
+                while run < range.end {
+                    // A run of particles: their terms one by one, then their node
+                    // contributions in lanes.
+                    let end = (run + STENCIL_LANES).min(range.end);
+                    for (l, i) in (run..end).enumerate() {
+                        let st = stencil_runs.get::<K, L>(&p.x, i, range.end, h);
+                        let d_inv = if need_moment {
+                            stencil_runs.moment_inverse::<K, L>(i, &st, h)
                         } else {
-                            (f.scatter_tables::<K>(&mv, &(mc + ms), &stress), None)
+                            None
                         };
-                        for r in 0..rows {
-                            let mut j = Stencil::<T, D>::local_of::<K>(r * K::NODES_PER_AXIS);
-                            let row = f.row(&j);
-                            let (w_row, m_row) = (row.1, row.1 * m);
-                            let shared = row_shared(&momentum, &row, &j);
-                            let shared_impulse = impulse.map(|t| row_shared(&t, &row, &j));
-                            for j0 in 0..K::NODES_PER_AXIS {
-                                j[0] = j0;
-                                let w0 = f.w[0][j0];
-                                let node_momentum = momentum[0][j0] * w_row + shared * w0;
-                                match (&impulse, &shared_impulse) {
-                                    (Some(ti), Some(si)) => {
-                                        let node_impulse = ti[0][j0] * w_row + si * w0;
-                                        buf.add_at(
-                                            index(&j),
-                                            w0 * m_row,
-                                            &node_momentum,
-                                            &node_impulse,
-                                        );
-                                    }
-                                    _ => buf.add_folded_at(index(&j), w0 * m_row, &node_momentum),
-                                }
+                        let c = scheme.p2g_affine(p.affine.get(i), d_inv.as_ref());
+                        let model = &materials[p.material[i] as usize];
+                        let scale = -p.volume[i] * dt;
+                        let zero = zero_matrix::<T, D>();
+                        let (elastic, viscous_part) = match (viscous, elastic_forces) {
+                            (true, true) => (
+                                stresses.get(p, materials, i, range.end, true),
+                                model.viscous_stress(&p.state(i)),
+                            ),
+                            (true, false) => (zero, model.viscous_stress(&p.state(i))),
+                            (false, true) => {
+                                (stresses.get(p, materials, i, range.end, false), zero)
                             }
+                            (false, false) => (zero, zero),
+                        };
+                        let mut stress = elastic * scale;
+                        // The part applied with the MLS gradient `w D⁻¹ r`.
+                        let mut mls_part = viscous_part * scale;
+                        if mls {
+                            mls_part += stress;
+                            stress = zero_matrix::<T, D>();
+                        }
+                        let mls_stress = d_inv.map(|di| mls_part * di);
+                        let m = p.mass[i];
+                        let mv = p.v[i] * m;
+                        let mc = c * m;
+                        // `mls_stress · r w` has the form of the affine term `C r w`;
+                        // FLIP keeps the impulse (stress and MLS parts) apart.
+                        let ms = mls_stress.unwrap_or(zero);
+                        if separate {
+                            lanes.set(l, m, &mv, &mc, &zero, Some((&ms, &stress)));
+                        } else {
+                            lanes.set(l, m, &mv, &(mc + ms), &stress, None);
                         }
                     }
+                    lanes.scatter::<K, L>(stencil_runs.lanes(), end - run, separate, h, buf);
+                    run = end;
                 }
             },
         );

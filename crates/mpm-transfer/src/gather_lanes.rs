@@ -20,16 +20,13 @@
 
 use crate::explicit_step::{moment_matrix, ExplicitStepper};
 use crate::scheme::{Gathered, Needs};
-use crate::separable::{stencil_rows, MAX_ROWS};
+use crate::separable::{stencil_rows, AxisFactorLanes, Lanes, MAX_ROWS};
 use mpm_grid::{BlockSparseGrid, GridLayout, BLOCK};
 use mpm_kernels::{Kernel, Stencil, StencilLanes, MAX_NODES_PER_AXIS, STENCIL_LANES};
 use mpm_math::{Real, Vector};
 use std::marker::PhantomData;
 
 const LANES: usize = STENCIL_LANES;
-
-/// A value per lane.
-type Lanes<T> = [T; LANES];
 
 /// Nodes per axis a home block's stencils reach at most: the block, one more for
 /// the second grid, three more for four nodes per axis.
@@ -213,7 +210,6 @@ fn sums_lanes<T: Real, const D: usize, K: Kernel, G: GridLayout>(
     let n = K::NODES_PER_AXIS;
     let rows = stencil_rows::<K, D>();
     let zero = T::zero();
-    let inv_h = T::one() / h;
     let mut strides = [1usize; D];
     for a in 1..D {
         strides[a] = strides[a - 1] * extent;
@@ -232,27 +228,14 @@ fn sums_lanes<T: Real, const D: usize, K: Kernel, G: GridLayout>(
                 first[l] += (base[l] - origin[a]) as isize * strides[a] as isize;
             }
         }
-        // `AxisFactors::new`: weights `w`, derivatives `g = N'/h`, offsets `r`.
-        let mut w = [[[zero; LANES]; MAX_NODES_PER_AXIS]; D];
-        let mut g = [[[zero; LANES]; MAX_NODES_PER_AXIS]; D];
-        let mut r = [[[zero; LANES]; MAX_NODES_PER_AXIS]; D];
-        for a in 0..D {
-            let weights = stencils.lane_weights(k, a);
-            let frac = stencils.lane_frac(k, a);
-            for j in 0..n {
-                for l in 0..LANES {
-                    w[a][j][l] = weights.w[j][l];
-                    g[a][j][l] = weights.dw[j][l] * inv_h;
-                    r[a][j][l] = (T::lit(j as f64) - frac[l]) * h;
-                }
-            }
-        }
+        let f = AxisFactorLanes::new::<K>(stencils, k, h);
+        let (w, g, r) = (&f.w, &f.g, &f.r);
         // `P₀` and the row sums `R`, row by row; FLIP's `Σ w (vᵢ − vᵢ_old)` with them.
         let mut first_axis = [[[zero; LANES]; D]; MAX_NODES_PER_AXIS];
         let mut row_sums = [[[zero; LANES]; D]; MAX_ROWS];
         for (row, rs) in row_sums.iter_mut().enumerate().take(rows) {
             let j = Stencil::<T, D>::local_of::<K>(row * n);
-            let (_, w_row) = excluded_from_row(&w, &j);
+            let (_, w_row) = f.row(&j);
             let row_offset: usize = (1..D).map(|a| j[a] * strides[a]).sum();
             for j0 in 0..n {
                 // The node velocities, from the tile.
@@ -276,7 +259,7 @@ fn sums_lanes<T: Real, const D: usize, K: Kernel, G: GridLayout>(
         p[0] = first_axis;
         for (row, rs) in row_sums.iter().enumerate().take(rows) {
             let j = Stencil::<T, D>::local_of::<K>(row * n);
-            let (x, _) = excluded_from_row(&w, &j);
+            let (x, _) = f.row(&j);
             for a in 1..D {
                 add_scaled(&mut p[a][j[a]], rs, &x[a]);
             }
@@ -337,30 +320,4 @@ fn sums_lanes<T: Real, const D: usize, K: Kernel, G: GridLayout>(
             o.moment_matrix = moment_matrix::<T, D, K, G>(&stencils.get::<K>(l), h);
         }
     }
-}
-
-/// `AxisFactors::row` in lanes: over the axes `1..D` of node `j`, the excluded
-/// products `Xₐ = Π_{b≥1, b≠a} w_b[j_b]` and the row weight `W = Π_{b≥1} w_b[j_b]`,
-/// by the same prefix and suffix products.
-#[inline(always)]
-fn excluded_from_row<T: Real, const D: usize>(
-    w: &[[Lanes<T>; MAX_NODES_PER_AXIS]; D],
-    j: &[usize; D],
-) -> ([Lanes<T>; D], Lanes<T>) {
-    let mut e = [[T::one(); LANES]; D];
-    let mut prefix = [T::one(); LANES];
-    for a in 1..D {
-        e[a] = prefix;
-        for l in 0..LANES {
-            prefix[l] *= w[a][j[a]][l];
-        }
-    }
-    let mut suffix = [T::one(); LANES];
-    for a in (1..D).rev() {
-        for l in 0..LANES {
-            e[a][l] *= suffix[l];
-            suffix[l] *= w[a][j[a]][l];
-        }
-    }
-    (e, prefix)
 }

@@ -18,6 +18,7 @@ mod moment_lanes;
 pub mod particles;
 mod pic;
 mod reference_step;
+mod scatter_lanes;
 pub mod scheme;
 mod separable;
 pub mod timestep;

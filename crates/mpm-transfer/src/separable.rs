@@ -5,7 +5,8 @@
 //! term by the one axis it does not share turns the per-node work from `O(D²)`
 //! (building `∇w`, `r`, then two matrix–vector products) into `O(D)`:
 //!
-//! - P2G (`row_shared`, a row of nodes along axis 0 at a time): `w (c₀ + C r) + S ∇w = Σₐ eₐ Aₐ[jₐ]` with the excluded
+//! - P2G (in lanes of particles, [`crate::scatter_lanes`], a row of nodes along
+//!   axis 0 at a time): `w (c₀ + C r) + S ∇w = Σₐ eₐ Aₐ[jₐ]` with the excluded
 //!   products `eₐ = Π_{b≠a} w_b[j_b]` and the per-axis tables
 //!   `A₀[j] = w₀[j] (c₀ + r₀[j] C₀) + g₀[j] S₀`, `Aₐ[j] = wₐ[j] rₐ[j] Cₐ + gₐ[j] Sₐ`
 //!   (`Cₐ`, `Sₐ` the columns), since `e₀ w₀ = w`, `eₐ wₐ rₐ = w rₐ` and
@@ -18,8 +19,8 @@
 //! Exactly the sums of the node-by-node form in another order (round-off apart:
 //! `tests/optimised_matches_reference.rs`).
 
-use mpm_kernels::{Kernel, Stencil, MAX_NODES_PER_AXIS};
-use mpm_math::{zero_vector, Matrix, Real, Vector};
+use mpm_kernels::{Kernel, Stencil, StencilLanes, MAX_NODES_PER_AXIS, STENCIL_LANES};
+use mpm_math::Real;
 
 /// Per-axis factors of one stencil: weights `w`, physical derivatives `g = N'/h` and
 /// offsets `r = (j − frac)·h`.
@@ -50,16 +51,6 @@ impl<T: Real, const D: usize> AxisFactors<T, D> {
         self.excluded_from(j, 0)
     }
 
-    /// The products over a stencil row (the nodes sharing `j₁ … j_{D−1}`, `j₀`
-    /// free): the row weight `W = Π_{b≥1} w_b[j_b]` and, for `a ≥ 1`, the row's
-    /// excluded products `Xₐ = Π_{b≥1, b≠a} w_b[j_b]`, so that a node's
-    /// `w = w₀[j₀] W`, `e₀ = W` and `eₐ = w₀[j₀] Xₐ` (`X₀` is unused). `j[0]` is
-    /// ignored.
-    #[inline(always)]
-    pub fn row(&self, j: &[usize; D]) -> ([T; D], T) {
-        self.excluded_from(j, 1)
-    }
-
     /// Over the axes `first..D`: `Π_{b≠a} w_b[j_b]` for each such `a` (1 for the
     /// others) and the product of all of them, by prefix and suffix products (no
     /// division: a 1-D weight may be zero).
@@ -78,47 +69,6 @@ impl<T: Real, const D: usize> AxisFactors<T, D> {
         }
         (e, prefix)
     }
-
-    /// The tables `Aₐ[j]` of `w (c₀ + C r) + S ∇w` (module docs).
-    #[inline(always)]
-    pub fn scatter_tables<K: Kernel>(
-        &self,
-        c0: &Vector<T, D>,
-        c: &Matrix<T, D>,
-        s: &Matrix<T, D>,
-    ) -> [[Vector<T, D>; MAX_NODES_PER_AXIS]; D] {
-        let mut t = [[zero_vector::<T, D>(); MAX_NODES_PER_AXIS]; D];
-        for a in 0..D {
-            let ca = c.column(a).into_owned();
-            let sa = s.column(a).into_owned();
-            for j in 0..K::NODES_PER_AXIS {
-                let w = self.w[a][j];
-                let mut v = ca * (w * self.r[a][j]) + sa * self.g[a][j];
-                if a == 0 {
-                    v += c0 * w;
-                }
-                t[a][j] = v;
-            }
-        }
-        t
-    }
-}
-
-/// `Σₐ eₐ Aₐ[jₐ]` for a whole stencil row (`j₁ … j_{D−1}` of `j`, see
-/// [`AxisFactors::row`]): node `(j₀, …)` receives `W A₀[j₀] + w₀[j₀] U` with the
-/// row's shared part `U = Σ_{a≥1} Xₐ Aₐ[jₐ]`, returned here: two vector updates per
-/// node instead of `D`.
-#[inline(always)]
-pub(crate) fn row_shared<T: Real, const D: usize>(
-    tables: &[[Vector<T, D>; MAX_NODES_PER_AXIS]; D],
-    row: &([T; D], T),
-    j: &[usize; D],
-) -> Vector<T, D> {
-    let mut u = zero_vector::<T, D>();
-    for a in 1..D {
-        u += tables[a][j[a]] * row.0[a];
-    }
-    u
 }
 
 /// Stencil rows (nodes sharing `j₁ … j_{D−1}`) a 2-D or 3-D stencil can have.
@@ -130,4 +80,64 @@ pub(crate) const fn stencil_rows<K: Kernel, const D: usize>() -> usize {
     let n = K::NODES_PER_AXIS.pow(D as u32 - 1);
     assert!(n <= MAX_ROWS, "at most 3 dimensions");
     n
+}
+
+/// A value per lane of [`STENCIL_LANES`] particles.
+pub(crate) type Lanes<T> = [T; STENCIL_LANES];
+
+/// [`AxisFactors`] of every lane of a [`StencilLanes`] on one grid, lane-major:
+/// `w[a][j][l]`, `g[a][j][l]`, `r[a][j][l]`, each lane's as [`AxisFactors::new`]
+/// computes them (same operations, same bits).
+pub(crate) struct AxisFactorLanes<T, const D: usize> {
+    pub w: [[Lanes<T>; MAX_NODES_PER_AXIS]; D],
+    pub g: [[Lanes<T>; MAX_NODES_PER_AXIS]; D],
+    pub r: [[Lanes<T>; MAX_NODES_PER_AXIS]; D],
+}
+
+impl<T: Real, const D: usize> AxisFactorLanes<T, D> {
+    /// The factors on grid `k` of `stencils` (kernel `K`, spacing `h`).
+    #[inline(always)]
+    pub fn new<K: Kernel>(stencils: &StencilLanes<T, D>, k: usize, h: T) -> Self {
+        let zero = [[[T::zero(); STENCIL_LANES]; MAX_NODES_PER_AXIS]; D];
+        let (mut w, mut g, mut r) = (zero, zero, zero);
+        // `Stencil::inv_h` is this same `1/h`.
+        let inv_h = T::one() / h;
+        for a in 0..D {
+            let weights = stencils.lane_weights(k, a);
+            let frac = stencils.lane_frac(k, a);
+            for j in 0..K::NODES_PER_AXIS {
+                for l in 0..STENCIL_LANES {
+                    w[a][j][l] = weights.w[j][l];
+                    g[a][j][l] = weights.dw[j][l] * inv_h;
+                    r[a][j][l] = (T::lit(j as f64) - frac[l]) * h;
+                }
+            }
+        }
+        AxisFactorLanes { w, g, r }
+    }
+
+    /// The products over a stencil row (the nodes sharing `j₁ … j_{D−1}`, `j₀`
+    /// free; `j[0]` is ignored), per lane: the row weight `W = Π_{b≥1} w_b[j_b]` and,
+    /// for `a ≥ 1`, the row's excluded products `Xₐ = Π_{b≥1, b≠a} w_b[j_b]`, so that
+    /// a node's `w = w₀[j₀] W`, `e₀ = W` and `eₐ = w₀[j₀] Xₐ` (`X₀` is unused). The
+    /// prefix and suffix products of [`AxisFactors::excluded`] over the axes `1..D`.
+    #[inline(always)]
+    pub fn row(&self, j: &[usize; D]) -> ([Lanes<T>; D], Lanes<T>) {
+        let mut e = [[T::one(); STENCIL_LANES]; D];
+        let mut prefix = [T::one(); STENCIL_LANES];
+        for a in 1..D {
+            e[a] = prefix;
+            for l in 0..STENCIL_LANES {
+                prefix[l] *= self.w[a][j[a]][l];
+            }
+        }
+        let mut suffix = [T::one(); STENCIL_LANES];
+        for a in (1..D).rev() {
+            for l in 0..STENCIL_LANES {
+                e[a][l] *= suffix[l];
+                suffix[l] *= self.w[a][j[a]][l];
+            }
+        }
+        (e, prefix)
+    }
 }

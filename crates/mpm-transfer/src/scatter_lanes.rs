@@ -1,0 +1,280 @@
+//! P2G's node contributions of up to [`STENCIL_LANES`] particles at once.
+//!
+//! A particle adds `w m`, and `w (m v + C r) + S ∇w` (momentum and, unless kept
+//! apart for FLIP, the stress impulse) to each stencil node. In the tensor-product
+//! form of [`crate::separable`] that is, per node of a row along axis 0,
+//! `W A₀[j₀] + w₀[j₀] U` from the per-axis tables `Aₐ[j]` and the row's shared part
+//! `U = Σ_{a≥1} Xₐ Aₐ[jₐ]`. One particle at a time that is a chain of scalar 3-vector
+//! operations; here the tables and every node's contribution are computed for all
+//! lanes together, then added to the home block's buffer lane by lane, each
+//! particle's nodes before the next particle's, as the one-particle loop adds them.
+//! Every lane does that loop's operations in its order (Rust never contracts into
+//! FMA), so the buffer receives the same bits; `tests/optimised_matches_reference.rs`
+//! checks P2G against the node-by-node reference.
+
+use crate::separable::{stencil_rows, AxisFactorLanes, Lanes, MAX_ROWS};
+use mpm_grid::{GridLayout, LocalBuffer};
+use mpm_kernels::{Kernel, Stencil, StencilLanes, MAX_NODES_PER_AXIS, STENCIL_LANES};
+use mpm_math::{Matrix, Real, Vector};
+
+const LANES: usize = STENCIL_LANES;
+
+/// Most nodes of one grid's stencil (4 per axis in 3-D).
+const MAX_NODES: usize = MAX_ROWS * MAX_NODES_PER_AXIS;
+
+/// The affine part `c₀ + C r` and the stress `S` of a node term
+/// `w (c₀ + C r) + S ∇w`, per lane.
+#[derive(Clone, Copy)]
+struct Term<T, const D: usize> {
+    c0: [Lanes<T>; D],
+    c: [[Lanes<T>; D]; D],
+    s: [[Lanes<T>; D]; D],
+}
+
+impl<T: Real, const D: usize> Term<T, D> {
+    fn zeros() -> Self {
+        Term {
+            c0: [[T::zero(); LANES]; D],
+            c: [[[T::zero(); LANES]; D]; D],
+            s: [[[T::zero(); LANES]; D]; D],
+        }
+    }
+
+    fn set(&mut self, l: usize, c0: &Vector<T, D>, c: &Matrix<T, D>, s: &Matrix<T, D>) {
+        for r in 0..D {
+            self.c0[r][l] = c0[r];
+            for a in 0..D {
+                self.c[r][a][l] = c[(r, a)];
+                self.s[r][a][l] = s[(r, a)];
+            }
+        }
+    }
+}
+
+/// Work space of one home block's P2G: the particles' terms of a run, and every
+/// node's contribution per lane (`node_mass[q][l]`, `node_momentum[q][c][l]`).
+pub(crate) struct ScatterLanes<T, const D: usize> {
+    mass: Lanes<T>,
+    momentum: Term<T, D>,
+    impulse: Term<T, D>,
+    node_mass: [Lanes<T>; MAX_NODES],
+    node_momentum: [[Lanes<T>; D]; MAX_NODES],
+    node_impulse: [[Lanes<T>; D]; MAX_NODES],
+}
+
+impl<T: Real, const D: usize> Default for ScatterLanes<T, D> {
+    fn default() -> Self {
+        ScatterLanes {
+            mass: [T::zero(); LANES],
+            momentum: Term::zeros(),
+            impulse: Term::zeros(),
+            node_mass: [[T::zero(); LANES]; MAX_NODES],
+            node_momentum: [[[T::zero(); LANES]; D]; MAX_NODES],
+            node_impulse: [[[T::zero(); LANES]; D]; MAX_NODES],
+        }
+    }
+}
+
+impl<T: Real, const D: usize> ScatterLanes<T, D> {
+    /// Lane `l`'s particle: mass `m`, momentum term `w (m v + c r) + s ∇w`, and, for a
+    /// scatter that keeps the impulse apart, its term `w (impulse.0 r) + impulse.1 ∇w`.
+    #[inline(always)]
+    pub fn set(
+        &mut self,
+        l: usize,
+        m: T,
+        mv: &Vector<T, D>,
+        c: &Matrix<T, D>,
+        s: &Matrix<T, D>,
+        impulse: Option<(&Matrix<T, D>, &Matrix<T, D>)>,
+    ) {
+        self.mass[l] = m;
+        self.momentum.set(l, mv, c, s);
+        if let Some((ci, si)) = impulse {
+            self.impulse.set(l, &Vector::<T, D>::zeros(), ci, si);
+        }
+    }
+
+    /// Adds the first `len` lanes' particles, with stencils `stencils` (kernel `K`,
+    /// layout `G`, spacing `h`), to `buf`; `separate`: the impulse goes apart.
+    pub fn scatter<K: Kernel, G: GridLayout>(
+        &mut self,
+        stencils: &StencilLanes<T, D>,
+        len: usize,
+        separate: bool,
+        h: T,
+        buf: &mut LocalBuffer<'_, T, D>,
+    ) {
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::is_x86_feature_detected!("avx512f") {
+                // SAFETY: the CPU has the feature just detected.
+                return unsafe { self.scatter_avx512::<K, G>(stencils, len, separate, h, buf) };
+            }
+            if std::is_x86_feature_detected!("avx2") {
+                // SAFETY: as above.
+                return unsafe { self.scatter_avx2::<K, G>(stencils, len, separate, h, buf) };
+            }
+        }
+        self.scatter_lanes::<K, G>(stencils, len, separate, h, buf);
+    }
+
+    /// [`Self::scatter_lanes`] compiled for AVX-512 (same bits as any other target).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f")]
+    fn scatter_avx512<K: Kernel, G: GridLayout>(
+        &mut self,
+        stencils: &StencilLanes<T, D>,
+        len: usize,
+        separate: bool,
+        h: T,
+        buf: &mut LocalBuffer<'_, T, D>,
+    ) {
+        self.scatter_lanes::<K, G>(stencils, len, separate, h, buf);
+    }
+
+    /// [`Self::scatter_lanes`] compiled for AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn scatter_avx2<K: Kernel, G: GridLayout>(
+        &mut self,
+        stencils: &StencilLanes<T, D>,
+        len: usize,
+        separate: bool,
+        h: T,
+        buf: &mut LocalBuffer<'_, T, D>,
+    ) {
+        self.scatter_lanes::<K, G>(stencils, len, separate, h, buf);
+    }
+
+    /// The portable lane code behind [`Self::scatter`].
+    #[inline(always)]
+    fn scatter_lanes<K: Kernel, G: GridLayout>(
+        &mut self,
+        stencils: &StencilLanes<T, D>,
+        len: usize,
+        separate: bool,
+        h: T,
+        buf: &mut LocalBuffer<'_, T, D>,
+    ) {
+        let n = K::NODES_PER_AXIS;
+        let rows = stencil_rows::<K, D>();
+        let zero = T::zero();
+        let strides = buf.strides();
+        for k in 0..G::GRIDS {
+            let f = AxisFactorLanes::new::<K>(stencils, k, h);
+            let momentum = tables::<T, D, K>(&self.momentum, &f);
+            let impulse = separate.then(|| tables::<T, D, K>(&self.impulse, &f));
+            for row in 0..rows {
+                let j = Stencil::<T, D>::local_of::<K>(row * n);
+                let (x, w_row) = f.row(&j);
+                let mut m_row = [zero; LANES];
+                for l in 0..LANES {
+                    m_row[l] = w_row[l] * self.mass[l];
+                }
+                let shared = row_shared(&momentum, &x, &j);
+                let shared_impulse = impulse.as_ref().map(|t| row_shared(t, &x, &j));
+                for j0 in 0..n {
+                    let q = row * n + j0;
+                    let w0 = &f.w[0][j0];
+                    for l in 0..LANES {
+                        self.node_mass[q][l] = w0[l] * m_row[l];
+                    }
+                    node_term(
+                        &mut self.node_momentum[q],
+                        &momentum[0][j0],
+                        &w_row,
+                        &shared,
+                        w0,
+                    );
+                    if let (Some(t), Some(u)) = (&impulse, &shared_impulse) {
+                        node_term(&mut self.node_impulse[q], &t[0][j0], &w_row, u, w0);
+                    }
+                }
+            }
+            // Into the buffer, a particle at a time.
+            let mut offsets = [0usize; MAX_NODES];
+            for (q, o) in offsets.iter_mut().enumerate().take(rows * n) {
+                let j = Stencil::<T, D>::local_of::<K>(q);
+                for a in 0..D {
+                    *o += j[a] * strides[a];
+                }
+            }
+            for l in 0..len {
+                let base: [i32; D] = std::array::from_fn(|a| stencils.lane_weights(k, a).base[l]);
+                let first = buf.index_of(k, &base);
+                for (q, o) in offsets.iter().enumerate().take(rows * n) {
+                    let idx = first + o;
+                    let m = self.node_mass[q][l];
+                    let p = Vector::<T, D>::from_fn(|c, _| self.node_momentum[q][c][l]);
+                    if separate {
+                        let i = Vector::<T, D>::from_fn(|c, _| self.node_impulse[q][c][l]);
+                        buf.add_at(idx, m, &p, &i);
+                    } else {
+                        buf.add_folded_at(idx, m, &p);
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Per-axis tables `Aₐ[j][c]` of a term (`AxisFactors::scatter_tables`):
+/// `Cₐ (wₐ[j] rₐ[j]) + Sₐ gₐ[j]`, plus `c₀ w₀[j]` on axis 0 (`Cₐ`, `Sₐ` the columns).
+#[inline(always)]
+fn tables<T: Real, const D: usize, K: Kernel>(
+    term: &Term<T, D>,
+    f: &AxisFactorLanes<T, D>,
+) -> [[[Lanes<T>; D]; MAX_NODES_PER_AXIS]; D] {
+    let mut t = [[[[T::zero(); LANES]; D]; MAX_NODES_PER_AXIS]; D];
+    for a in 0..D {
+        for j in 0..K::NODES_PER_AXIS {
+            for c in 0..D {
+                for l in 0..LANES {
+                    let wa = f.w[a][j][l];
+                    let mut v =
+                        term.c[c][a][l] * (wa * f.r[a][j][l]) + term.s[c][a][l] * f.g[a][j][l];
+                    if a == 0 {
+                        v += term.c0[c][l] * wa;
+                    }
+                    t[a][j][c][l] = v;
+                }
+            }
+        }
+    }
+    t
+}
+
+/// The row's shared part `U = Σ_{a≥1} Xₐ Aₐ[jₐ]` (`row_shared`).
+#[inline(always)]
+fn row_shared<T: Real, const D: usize>(
+    t: &[[[Lanes<T>; D]; MAX_NODES_PER_AXIS]; D],
+    x: &[Lanes<T>; D],
+    j: &[usize; D],
+) -> [Lanes<T>; D] {
+    let mut u = [[T::zero(); LANES]; D];
+    for a in 1..D {
+        for c in 0..D {
+            for l in 0..LANES {
+                u[c][l] += t[a][j[a]][c][l] * x[a][l];
+            }
+        }
+    }
+    u
+}
+
+/// A node's term `A₀[j₀] W + U w₀[j₀]`.
+#[inline(always)]
+fn node_term<T: Real, const D: usize>(
+    out: &mut [Lanes<T>; D],
+    a0: &[Lanes<T>; D],
+    w_row: &Lanes<T>,
+    shared: &[Lanes<T>; D],
+    w0: &Lanes<T>,
+) {
+    for c in 0..D {
+        for l in 0..LANES {
+            out[c][l] = a0[c][l] * w_row[l] + shared[c][l] * w0[l];
+        }
+    }
+}
