@@ -585,9 +585,9 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
 
     /// The particle side of G2P, shared by [`Self::grid_to_particle`] and the
     /// reference step: `gather` gives the grid sums (averaged over the grids) at runs
-    /// of particles of one home block (up to [`STENCIL_LANES`]); this updates velocity, affine matrix, material state
-    /// and position, and reports the first (lowest id) particle whose state is not
-    /// finite or not admissible for its model.
+    /// of up to [`STENCIL_LANES`] particles of one home block; this updates velocity,
+    /// affine matrix, material state and position, and reports the first (lowest id)
+    /// particle whose state is not finite or not admissible for its model.
     pub(crate) fn update_particles_with<S, G>(
         &mut self,
         particles: &mut Particles<T, D>,
