@@ -219,7 +219,7 @@ impl<T: Real, const D: usize> ScatterLanes<T, D> {
     }
 }
 
-/// Per-axis tables `Aₐ[j][c]` of a term (`AxisFactors::scatter_tables`):
+/// Per-axis tables `Aₐ[j][c]` of a term (module docs):
 /// `Cₐ (wₐ[j] rₐ[j]) + Sₐ gₐ[j]`, plus `c₀ w₀[j]` on axis 0 (`Cₐ`, `Sₐ` the columns).
 #[inline(always)]
 fn tables<T: Real, const D: usize, K: Kernel>(
@@ -245,7 +245,7 @@ fn tables<T: Real, const D: usize, K: Kernel>(
     t
 }
 
-/// The row's shared part `U = Σ_{a≥1} Xₐ Aₐ[jₐ]` (`row_shared`).
+/// The row's shared part `U = Σ_{a≥1} Xₐ Aₐ[jₐ]`.
 #[inline(always)]
 fn row_shared<T: Real, const D: usize>(
     t: &[[[Lanes<T>; D]; MAX_NODES_PER_AXIS]; D],
