@@ -328,6 +328,16 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
         BLOCK as usize + (L::GRIDS - 1) + (K::NODES_PER_AXIS - 1)
     }
 
+    /// Offset (cells) of the lattice whose stencil base is a particle's home cell:
+    /// grid 0's for one grid, a quarter cell above it (between the two grids) for two.
+    pub fn home_offset() -> f64 {
+        if L::GRIDS == 1 {
+            L::offset(0)
+        } else {
+            L::offset(0) + 0.25
+        }
+    }
+
     /// One full step.
     pub fn step<S: TransferScheme<T, D>>(
         &mut self,
@@ -348,17 +358,25 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
         result
     }
 
-    /// Sorts particles by the grid block of their first stencil node on grid 0.
+    /// Sorts particles by the grid block of their home cell ([`Self::home_cells`]).
     pub fn bin(&mut self, particles: &mut Particles<T, D>, h: T) {
         self.home_cells(particles, h);
         let order = self.grid.bin(&self.cells);
         particles.reorder_with(&order, &mut self.reorder_scratch);
     }
 
-    /// Fills `self.cells` with each particle's first stencil node on grid 0.
+    /// Fills `self.cells` with each particle's home cell: the first node of its
+    /// stencil on the lattice at [`Self::home_offset`]. On one grid that is grid 0's
+    /// first node. On the dual layout (grids at `−¼` and `−¾`) it is the lattice
+    /// between them: per axis, the first nodes on both grids are the home cell or the
+    /// next, which the home buffer holds. It changes where `x/h − (N−2)/2` crosses an
+    /// integer (`N` nodes per axis): particles seeded 2 per cell and axis (at ¼ and ¾
+    /// of a cell) sit a quarter cell away, whereas on grid 0's lattice (`x/h + ¼`) the
+    /// compact kernel's ¾ particles sit exactly on those points, and round-off moved
+    /// them across a home boundary on every step.
     pub(crate) fn home_cells(&mut self, particles: &Particles<T, D>, h: T) {
         let inv_h = T::one() / h;
-        let off = T::lit(L::offset(0));
+        let off = T::lit(Self::home_offset());
         self.cells.clear();
         particles
             .x
@@ -734,5 +752,92 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
             t.add_point(m, &x, &p);
         });
         t
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use mpm_constitutive::StateNeeds;
+    use mpm_grid::{Dual, Single};
+    use mpm_kernels::{Compact, CubicBSpline, Linear, QuadraticBSpline};
+
+    /// Positions (cell units) on and ±1e-9 off the quarter-cell lattice, and spread
+    /// values, negative ones included.
+    fn positions_in_cells() -> Vec<f64> {
+        let mut u = Vec::new();
+        for i in -41..41 {
+            for e in [-1e-9, 0.0, 1e-9] {
+                u.push(i as f64 * 0.25 + e);
+            }
+        }
+        for k in 0..300 {
+            u.push((k as f64 * 0.7231).sin() * 13.0);
+        }
+        u
+    }
+
+    fn homes<K: Kernel, L: GridLayout>(h: f64, u: &[f64]) -> Vec<[i32; 2]> {
+        let mut particles = Particles::<f64, 2>::new(false, StateNeeds::default());
+        for (j, a) in u.iter().enumerate() {
+            let b = u[(j * 7 + 3) % u.len()];
+            let x = Vector::<f64, 2>::new(a * h, b * h);
+            particles.push(x, Vector::zeros(), 1.0, 1.0, 0, 0.0);
+        }
+        let mut stepper = ExplicitStepper::<f64, 2, K, L>::new();
+        stepper.home_cells(&particles, h);
+        stepper.cells
+    }
+
+    /// The scatter buffer of a home block holds the stencils of its particles only
+    /// if every first stencil node lies at the home cell or the next one along each
+    /// axis (one grid: at the home cell, `buffer_extent` = BLOCK + N − 1).
+    fn every_stencil_starts_at_the_home_cell_or_the_next<K: Kernel, L: GridLayout>() {
+        let h = 0.37;
+        let inv_h = 1.0 / h;
+        let u = positions_in_cells();
+        let cells = homes::<K, L>(h, &u);
+        for (j, c) in cells.iter().enumerate() {
+            let x = [u[j] * h, u[(j * 7 + 3) % u.len()] * h];
+            for k in 0..L::GRIDS {
+                for a in 0..2 {
+                    let first = K::base_node(x[a] * inv_h - L::offset(k));
+                    let d = first - c[a];
+                    let allowed = if L::GRIDS == 1 { 0..=0 } else { 0..=1 };
+                    assert!(
+                        allowed.contains(&d),
+                        "{} {}: x/h = {}, grid {k}: first node {first}, home {}",
+                        K::NAME,
+                        L::NAME,
+                        x[a] * inv_h,
+                        c[a]
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn stencils_fit_the_home_buffers() {
+        every_stencil_starts_at_the_home_cell_or_the_next::<Compact, Dual>();
+        every_stencil_starts_at_the_home_cell_or_the_next::<QuadraticBSpline, Dual>();
+        every_stencil_starts_at_the_home_cell_or_the_next::<CubicBSpline, Dual>();
+        every_stencil_starts_at_the_home_cell_or_the_next::<Compact, Single>();
+        every_stencil_starts_at_the_home_cell_or_the_next::<QuadraticBSpline, Single>();
+        every_stencil_starts_at_the_home_cell_or_the_next::<CubicBSpline, Single>();
+        every_stencil_starts_at_the_home_cell_or_the_next::<Linear, Single>();
+    }
+
+    /// Particles seeded 2 per cell and axis sit at ¼ and ¾ of a cell: on the dual
+    /// layout their home cell must not change when round-off moves them by 1e-6 of a
+    /// cell, or every step would re-sort them.
+    #[test]
+    fn dual_layout_homes_are_stable_on_a_half_cell_lattice() {
+        let h = 0.01;
+        let lattice: Vec<f64> = (-20..20).map(|i| i as f64 * 0.5 + 0.25).collect();
+        let nudged = |e: f64| lattice.iter().map(|u| u + e).collect::<Vec<_>>();
+        let at = homes::<Compact, Dual>(h, &lattice);
+        assert_eq!(homes::<Compact, Dual>(h, &nudged(1e-6)), at);
+        assert_eq!(homes::<Compact, Dual>(h, &nudged(-1e-6)), at);
     }
 }
