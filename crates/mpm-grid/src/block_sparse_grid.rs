@@ -21,6 +21,9 @@ use rustc_hash::FxHashMap as HashMap;
 /// Nodes per block per axis.
 pub const BLOCK: i32 = 4;
 const NONE: u32 = u32::MAX;
+/// Particles per chunk of [`BlockSparseGrid::bin`]'s parallel passes: fixed, so that
+/// the thread count changes only how the work is shared, never the result.
+const BIN_CHUNK: usize = 1 << 14;
 
 /// One home block's private scatter buffer (all grids of the layout).
 pub struct LocalBuffer<'a, T: Real, const D: usize> {
@@ -471,10 +474,12 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
             + self.block_index.capacity() * (size_of::<[i32; D]>() + 4)
     }
 
-    /// Bins particles by home block. `home_cell[p]` is the first stencil node of particle
-    /// `p` on grid 0. Returns the stable permutation `order` (new position → old index)
-    /// that sorts particles by home block (blocks in [`block_order`]); the caller must
-    /// reorder its particle arrays with it before scattering. Deterministic.
+    /// Bins particles by home block. `home_cell[p]` is particle `p`'s home cell, a node
+    /// that its stencils on every grid start at or one node above (per axis), such as
+    /// its first stencil node on grid 0. Returns the stable permutation `order` (new
+    /// position → old index) that sorts particles by home block (blocks in
+    /// [`block_order`]); the caller must reorder its particle arrays with it before
+    /// scattering. Deterministic, whatever the thread count.
     pub fn bin(&mut self, home_cell: &[[i32; D]]) -> Vec<u32> {
         self.bin_with_halo(home_cell, &[])
     }
@@ -485,50 +490,79 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
     /// [`crate::partition`]). Blocks of `halo` that also hold particles here are
     /// ordinary home blocks.
     pub fn bin_with_halo(&mut self, home_cell: &[[i32; D]], halo: &[[i32; D]]) -> Vec<u32> {
-        // Home block of each particle; unique blocks in a fixed order.
-        let mut ids: HashMap<[i32; D], u32> = HashMap::default();
-        ids.reserve(self.home_blocks.len() + halo.len() + 16);
-        let mut found: Vec<[i32; D]> = Vec::new();
+        let n = home_cell.len();
+        // 1. In parallel, per fixed-size chunk of particles: the chunk's blocks in
+        // first-seen order, how many of its particles each holds, and each particle's
+        // index into that list (in `keys`). Particles arrive sorted by last step's
+        // blocks: consecutive ones mostly share a block, so the map is consulted only
+        // when the block changes.
         self.keys.clear();
-        self.keys.reserve(home_cell.len());
-        // Particles arrive sorted by last step's blocks: consecutive ones mostly share
-        // a block, so the map is consulted only when the block changes.
-        let mut last: Option<([i32; D], u32)> = None;
-        for c in home_cell {
-            let b = c.map(|v| v.div_euclid(BLOCK));
-            let id = match last {
-                Some((lb, lid)) if lb == b => lid,
-                _ => {
-                    let id = *ids.entry(b).or_insert_with(|| {
-                        found.push(b);
-                        (found.len() - 1) as u32
-                    });
-                    last = Some((b, id));
-                    id
+        self.keys.resize(n, 0);
+        let chunks: Vec<(Vec<[i32; D]>, Vec<usize>)> = home_cell
+            .par_chunks(BIN_CHUNK)
+            .zip(self.keys.par_chunks_mut(BIN_CHUNK))
+            .map(|(cells, keys)| {
+                let mut ids: HashMap<[i32; D], u32> = HashMap::default();
+                let mut found: Vec<[i32; D]> = Vec::new();
+                let mut count: Vec<usize> = Vec::new();
+                let mut last: Option<([i32; D], u32)> = None;
+                for (c, k) in cells.iter().zip(keys.iter_mut()) {
+                    let b = c.map(|v| v.div_euclid(BLOCK));
+                    let id = match last {
+                        Some((lb, lid)) if lb == b => lid,
+                        _ => {
+                            let id = *ids.entry(b).or_insert_with(|| {
+                                found.push(b);
+                                count.push(0);
+                                (found.len() - 1) as u32
+                            });
+                            last = Some((b, id));
+                            id
+                        }
+                    };
+                    count[id as usize] += 1;
+                    *k = id;
                 }
-            };
-            self.keys.push(id);
-        }
-        for b in halo {
-            ids.entry(*b).or_insert_with(|| {
-                found.push(*b);
-                (found.len() - 1) as u32
-            });
-        }
-        let mut sorted: Vec<u32> = (0..found.len() as u32).collect();
-        sorted.sort_unstable_by(|&a, &b| block_order(&found[a as usize], &found[b as usize]));
-        let mut rank = vec![0u32; found.len()];
-        for (r, &id) in sorted.iter().enumerate() {
-            rank[id as usize] = r as u32;
-        }
-        self.home_blocks = sorted.iter().map(|&id| found[id as usize]).collect();
+                (found, count)
+            })
+            .collect();
 
-        // Stable counting sort of particles by block rank.
+        // 2. The home blocks: every chunk's and the halo, in `block_order`.
+        let mut homes: Vec<[i32; D]> = chunks
+            .iter()
+            .flat_map(|(found, _)| found.iter())
+            .chain(halo)
+            .copied()
+            .collect();
+        homes.par_sort_unstable_by(block_order);
+        homes.dedup();
+        self.home_blocks = homes;
+        let home_index: HashMap<[i32; D], u32> = self
+            .home_blocks
+            .iter()
+            .enumerate()
+            .map(|(i, b)| (*b, i as u32))
+            .collect();
+
+        // 3. Stable counting sort: home block `r`'s range holds chunk 0's particles of
+        // `r`, then chunk 1's, …, each in their order; every (chunk, block) pair owns
+        // one disjoint segment of `order`, which that chunk fills in parallel.
+        let mut pieces: Vec<(u32, u32, u32)> = chunks
+            .iter()
+            .enumerate()
+            .flat_map(|(c, (found, _))| {
+                let home_index = &home_index;
+                found
+                    .iter()
+                    .enumerate()
+                    .map(move |(l, b)| (home_index[b], c as u32, l as u32))
+            })
+            .collect();
+        pieces.sort_unstable();
         self.counts.clear();
         self.counts.resize(self.home_blocks.len() + 1, 0);
-        for k in self.keys.iter_mut() {
-            *k = rank[*k as usize];
-            self.counts[*k as usize + 1] += 1;
+        for &(r, c, l) in &pieces {
+            self.counts[r as usize + 1] += chunks[c as usize].1[l as usize];
         }
         for i in 1..self.counts.len() {
             self.counts[i] += self.counts[i - 1];
@@ -541,12 +575,30 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
             self.sorted_home
                 .extend(std::iter::repeat_n(b as u32, e - s));
         }
-        let mut order = vec![0u32; home_cell.len()];
-        let mut next = self.counts.clone();
-        for (p, &k) in self.keys.iter().enumerate() {
-            order[next[k as usize]] = p as u32;
-            next[k as usize] += 1;
+        let mut order = vec![0u32; n];
+        let mut segments: Vec<Vec<&mut [u32]>> = chunks
+            .iter()
+            .map(|(found, _)| found.iter().map(|_| Default::default()).collect())
+            .collect();
+        let mut rest: &mut [u32] = &mut order;
+        for &(_, c, l) in &pieces {
+            let (segment, tail) =
+                std::mem::take(&mut rest).split_at_mut(chunks[c as usize].1[l as usize]);
+            segments[c as usize][l as usize] = segment;
+            rest = tail;
         }
+        segments
+            .into_par_iter()
+            .zip(self.keys.par_chunks(BIN_CHUNK))
+            .enumerate()
+            .for_each(|(c, (mut segments, keys))| {
+                let mut filled = vec![0usize; segments.len()];
+                for (i, &k) in keys.iter().enumerate() {
+                    let k = k as usize;
+                    segments[k][filled[k]] = (c * BIN_CHUNK + i) as u32;
+                    filled[k] += 1;
+                }
+            });
 
         // Grid blocks: every home block and its upper neighbours.
         let mut all: Vec<[i32; D]> = Vec::with_capacity(self.home_blocks.len() << D);
@@ -583,12 +635,6 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
                 }
                 n
             })
-            .collect();
-        let home_index: HashMap<[i32; D], u32> = self
-            .home_blocks
-            .iter()
-            .enumerate()
-            .map(|(i, b)| (*b, i as u32))
             .collect();
         self.grid_sources = self
             .blocks
@@ -1092,6 +1138,18 @@ mod tests {
         expected
             .sort_by(|&a, &b| block_order(&block(&cells[a as usize]), &block(&cells[b as usize])));
         assert_eq!(order, expected);
+        // The chunks span several blocks each and blocks span chunks (50,123
+        // particles are 4 chunks); the thread count shares the work, nothing else.
+        for threads in [1, 3] {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            let mut other = BlockSparseGrid::<f32, 3>::new(2);
+            let again = pool.install(|| other.bin_with_halo(&cells, &halo));
+            assert_eq!(again, expected, "{threads} threads");
+            assert_eq!(other.home_of_sorted(), g.home_of_sorted());
+        }
         let mut blocks: Vec<[i32; 3]> = cells.iter().map(block).chain(halo).collect();
         blocks.sort_by(block_order);
         blocks.dedup();
