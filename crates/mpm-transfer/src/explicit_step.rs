@@ -221,6 +221,21 @@ impl<T: Real, const D: usize> StencilRuns<T, D> {
         end: usize,
         h: T,
     ) -> [Stencil<T, D>; 2] {
+        self.prepare::<K, L>(xs, i, end, h);
+        self.lanes.get::<K>(i - self.start)
+    }
+
+    /// [`Self::get`] without copying the stencils out of the lanes: makes the
+    /// current run hold particle `i`, for [`Self::lanes`] and
+    /// [`Self::moment_inverse`].
+    #[inline(always)]
+    pub fn prepare<K: Kernel, L: GridLayout>(
+        &mut self,
+        xs: &[Vector<T, D>],
+        i: usize,
+        end: usize,
+        h: T,
+    ) {
         if !(self.start..self.start + self.lanes.len()).contains(&i) {
             let last = end.min(i + STENCIL_LANES);
             let offsets = layout_offsets::<T, L>();
@@ -233,22 +248,17 @@ impl<T: Real, const D: usize> StencilRuns<T, D> {
             }
             self.start = i;
         }
-        self.lanes.get::<K>(i - self.start)
     }
 
-    /// `D_p⁻¹` of particle `i` (in the run of the last [`Self::get`]; `None` when
-    /// singular), from the lanes where they hold it, else ([`Self::with_moment_inverse`] not asked,
-    /// or `D_p = c h² I`) from its stencils `st`.
+    /// `D_p⁻¹` of particle `i` of the current run (`None` when singular): from the
+    /// lanes where they hold it ([`Self::with_moment_inverse`]), the constant one
+    /// where `D_p = c h² I`, else from its stencils, copied out of the lanes.
     #[inline(always)]
-    pub fn moment_inverse<K: Kernel, L: GridLayout>(
-        &self,
-        i: usize,
-        st: &[Stencil<T, D>; 2],
-        h: T,
-    ) -> Option<Matrix<T, D>> {
+    pub fn moment_inverse<K: Kernel, L: GridLayout>(&self, i: usize, h: T) -> Option<Matrix<T, D>> {
         match (&self.moments, constant_moment::<T, K, L>(h)) {
             (Some(m), None) => m.get(i - self.start),
-            _ => moment_inverse::<T, D, K, L>(st, h),
+            (_, Some(c)) => Some(Matrix::<T, D>::identity() * (T::one() / c)),
+            (None, None) => moment_inverse::<T, D, K, L>(&self.lanes.get::<K>(i - self.start), h),
         }
     }
 }
@@ -461,9 +471,9 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
                     // contributions in lanes.
                     let end = (run + STENCIL_LANES).min(range.end);
                     for (l, i) in (run..end).enumerate() {
-                        let st = stencil_runs.get::<K, L>(&p.x, i, range.end, h);
+                        stencil_runs.prepare::<K, L>(&p.x, i, range.end, h);
                         let d_inv = if need_moment {
-                            stencil_runs.moment_inverse::<K, L>(i, &st, h)
+                            stencil_runs.moment_inverse::<K, L>(i, h)
                         } else {
                             None
                         };
