@@ -257,7 +257,7 @@ impl<T: Real, const D: usize> StencilRuns<T, D> {
     pub fn moment_inverse<K: Kernel, L: GridLayout>(&self, i: usize, h: T) -> Option<Matrix<T, D>> {
         match (&self.moments, constant_moment::<T, K, L>(h)) {
             (Some(m), None) => m.get(i - self.start),
-            (_, Some(c)) => Some(Matrix::<T, D>::identity() * (T::one() / c)),
+            (_, Some(c)) => Some(constant_moment_inverse::<T, D>(c)),
             (None, None) => moment_inverse::<T, D, K, L>(&self.lanes.get::<K>(i - self.start), h),
         }
     }
@@ -304,9 +304,15 @@ pub fn moment_inverse<T: Real, const D: usize, K: Kernel, L: GridLayout>(
     h: T,
 ) -> Option<Matrix<T, D>> {
     if let Some(m) = constant_moment::<T, K, L>(h) {
-        return Some(Matrix::<T, D>::identity() * (T::one() / m));
+        return Some(constant_moment_inverse::<T, D>(m));
     }
     try_inverse(&moment_matrix::<T, D, K, L>(st, h))
+}
+
+/// `D_p⁻¹ = I / m` for a constant moment `D_p = m I` ([`constant_moment`]).
+#[inline(always)]
+fn constant_moment_inverse<T: Real, const D: usize>(m: T) -> Matrix<T, D> {
+    Matrix::<T, D>::identity() * (T::one() / m)
 }
 
 impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K, L> {
@@ -788,10 +794,16 @@ mod tests {
         u
     }
 
+    /// 2-D positions (cell units) pairing each value of `u` with another one.
+    fn pairs(u: &[f64]) -> Vec<[f64; 2]> {
+        (0..u.len())
+            .map(|j| [u[j], u[(j * 7 + 3) % u.len()]])
+            .collect()
+    }
+
     fn homes<K: Kernel, L: GridLayout>(h: f64, u: &[f64]) -> Vec<[i32; 2]> {
         let mut particles = Particles::<f64, 2>::new(false, StateNeeds::default());
-        for (j, a) in u.iter().enumerate() {
-            let b = u[(j * 7 + 3) % u.len()];
+        for [a, b] in pairs(u) {
             let x = Vector::<f64, 2>::new(a * h, b * h);
             particles.push(x, Vector::zeros(), 1.0, 1.0, 0, 0.0);
         }
@@ -808,8 +820,8 @@ mod tests {
         let inv_h = 1.0 / h;
         let u = positions_in_cells();
         let cells = homes::<K, L>(h, &u);
-        for (j, c) in cells.iter().enumerate() {
-            let x = [u[j] * h, u[(j * 7 + 3) % u.len()] * h];
+        for (c, p) in cells.iter().zip(pairs(&u)) {
+            let x = p.map(|v| v * h);
             for k in 0..L::GRIDS {
                 for a in 0..2 {
                     let first = K::base_node(x[a] * inv_h - L::offset(k));
