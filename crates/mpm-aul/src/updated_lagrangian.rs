@@ -112,7 +112,7 @@ use mpm_constitutive::{Material, StateMut};
 use mpm_grid::{BlockSparseGrid, Collider, GridLayout, BLOCK};
 use mpm_implicit::{GridSolve, ImplicitStepError, Integrator, NewtonSettings, SolveStats};
 use mpm_kernels::{Kernel, Stencil};
-use mpm_math::{determinant, flush_subnormals, try_inverse, Matrix, Real, Vector};
+use mpm_math::{determinant, flush_subnormals, try_inverse, ErasedLoops, Matrix, Real, Vector};
 use mpm_transfer::{
     advect_checked, particle_chunks, Particles, PhaseTimes, StepError, StepParams, StressRuns,
     PARTICLE_CHUNK,
@@ -218,6 +218,9 @@ pub struct UpdatedLagrangianStepper<T: Real, const D: usize, K: Kernel, L: GridL
 /// lives in its own lane of the block-sparse index space, so bodies never share
 /// reference nodes and couple only through the contact pass.
 const LANE: i32 = 1 << 22;
+
+/// Grid nodes per task of the parallel node loops.
+const NODE_CHUNK: usize = 1024;
 
 /// Lane (body) of a node index.
 #[inline(always)]
@@ -407,16 +410,17 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
         let inv_h = T::one() / h;
         self.cells.clear();
         let this = &*self;
-        let cells: Vec<[i32; D]> = particles
-            .x
-            .par_iter()
-            .zip(particles.id.par_iter())
-            .map(|(x, id)| {
-                let mut c = geometry::<T, D, K, L>(x, inv_h, 0).0;
-                c[0] += this.lane(*id);
-                c
-            })
-            .collect();
+        let mut cells = vec![[0i32; D]; particles.len()];
+        cells
+            .par_chunks_mut(PARTICLE_CHUNK)
+            .zip(particles.x.par_chunks(PARTICLE_CHUNK))
+            .zip(particles.id.par_chunks(PARTICLE_CHUNK))
+            .for_each_erased(&|((cells, xs), ids)| {
+                for ((c, x), id) in cells.iter_mut().zip(xs).zip(ids) {
+                    *c = geometry::<T, D, K, L>(x, inv_h, 0).0;
+                    c[0] += this.lane(*id);
+                }
+            });
         self.cells = cells;
         let order = self.grid.bin(&self.cells);
         particles.reorder(&order);
@@ -457,7 +461,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
             .zip(st.moment_inverse.par_iter_mut())
             .zip(particles.x.par_iter())
             .enumerate()
-            .filter_map(|(p, (((w, gr), kp), x))| {
+            .map_erased(&|(p, (((w, gr), kp), x))| {
                 let mut d = Matrix::<T, D>::zeros();
                 let per_grid = npp / L::GRIDS;
                 for k in 0..L::GRIDS {
@@ -483,6 +487,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
                     None => Some(p),
                 }
             })
+            .flatten()
             .min();
         self.rebuilds += 1;
         self.weight_evaluations += n as u64;
@@ -651,7 +656,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
             .par_chunks_mut(npp)
             .zip(vectors.par_chunks_mut(npp))
             .enumerate()
-            .for_each(|(p, (ns, vs))| {
+            .for_each_erased(&|(p, (ns, vs))| {
                 let view = grid.gather_view(homes[p] as usize);
                 let lane = lanes.get(p).copied().unwrap_or(0);
                 let w = &st.weights[p * npp..(p + 1) * npp];
@@ -835,13 +840,15 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
         }
         let grid = &mut self.grid;
         grid.velocity
-            .par_iter_mut()
-            .zip(self.node_positions.par_iter())
-            .zip(grid.mass.par_iter())
-            .for_each(|((v, q), m)| {
-                if *m > T::zero() {
-                    for c in colliders {
-                        *v = c.apply(q, *v, t);
+            .par_chunks_mut(NODE_CHUNK)
+            .zip(self.node_positions.par_chunks(NODE_CHUNK))
+            .zip(grid.mass.par_chunks(NODE_CHUNK))
+            .for_each_erased(&|((vs, qs), ms)| {
+                for ((v, q), m) in vs.iter_mut().zip(qs).zip(ms) {
+                    if *m > T::zero() {
+                        for c in colliders {
+                            *v = c.apply(q, *v, t);
+                        }
                     }
                 }
             });
@@ -1107,7 +1114,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
         )
             .into_par_iter()
             .enumerate()
-            .filter_map(|(c, (xs, vs, as_, fsns, djs, fs, qs, js, ls))| {
+            .map_erased(&|(c, (xs, vs, as_, fsns, djs, fs, qs, js, ls))| {
                 flush_subnormals(|| {
                     let mut worst: Option<StepError> = None;
                     let mut as_ = as_.iter_mut();
@@ -1134,12 +1141,19 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
                     worst
                 })
             })
+            .collect::<Vec<Option<StepError>>>()
+            .into_iter()
+            .flatten()
             .min_by_key(|e| e.particle());
         // The nodes move with the grid velocity (eq. 27): q_i += Δt v_i.
         self.node_positions
-            .par_iter_mut()
-            .zip(self.grid.velocity.par_iter())
-            .for_each(|(q, v)| *q += v * dt);
+            .par_chunks_mut(NODE_CHUNK)
+            .zip(self.grid.velocity.par_chunks(NODE_CHUNK))
+            .for_each_erased(&|(qs, vs)| {
+                for (q, v) in qs.iter_mut().zip(vs) {
+                    *q += v * dt;
+                }
+            });
         self.nodes_fresh = false;
         match first_error {
             Some(e) => Err(e),

@@ -18,7 +18,7 @@ use crate::scene::{GridKind, Kernel as KernelKind, Precision, Scene};
 use mpm_constitutive::{ElasticModel, FixedCorotated, JFluid, Material, StateNeeds};
 use mpm_grid::{domain_walls, ContactKind, Dual, GridLayout, Single};
 use mpm_kernels::{Compact, CubicBSpline, Kernel, Linear, QuadraticBSpline};
-use mpm_math::{determinant, Real};
+use mpm_math::{determinant, ErasedLoops, Real};
 use mpm_transfer::{
     Apic, ExplicitStepper, Mls, Particles, PhaseTimes, StepParams, StressRuns, Transfer,
     TransferScheme, PARTICLE_CHUNK,
@@ -417,7 +417,7 @@ fn peer_stepper<K: Kernel, L: GridLayout>(
         let n = p.len();
         let sum: f32 = (0..n.div_ceil(PARTICLE_CHUNK))
             .into_par_iter()
-            .map(|c| {
+            .map_erased(&|c| {
                 let mut stresses = StressRuns::default();
                 let end = ((c + 1) * PARTICLE_CHUNK).min(n);
                 (c * PARTICLE_CHUNK..end)

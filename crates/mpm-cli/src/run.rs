@@ -1073,10 +1073,81 @@ fn summary_json<T: Real, const D: usize, K: Kernel, L: GridLayout>(
     frames: usize,
     outcome: &Result<(), RunError>,
 ) -> serde_json::Value {
-    let phases = sim.phase_times();
-    let particle_steps = sim.steps as f64 * particles as f64;
+    let facts = SimFacts {
+        phases: sim.phase_times(),
+        steps: sim.steps,
+        time: sim.time,
+        wave_speed: sim.wave_speed().to_f64(),
+        bytes_per_particle: sim.bytes_per_particle(),
+        reference_kind: mpm_aul::ReferenceConfig::name(&sim.reference),
+        reference_updates: sim.reference_updates,
+        reference_update_seconds: sim.reference_update_seconds(),
+        weight_evaluations: sim.weight_evaluations(),
+        kernel: K::NAME,
+        layout: L::NAME,
+        grids: L::GRIDS,
+        nodes_per_particle: K::NODES_PER_AXIS.pow(D as u32) * L::GRIDS,
+        active_nodes: sim.grid().node_count(),
+        active_blocks: sim.grid().block_count(),
+        grid_bytes: sim.grid().heap_bytes(),
+        integrator: sim.integrator,
+        newton: sim.newton,
+        solver: sim.solver,
+    };
+    let run = RunFacts {
+        particles,
+        wall,
+        output_seconds,
+        frames,
+    };
+    summary_of(scene, opts, &facts, &run, t, outcome)
+}
+
+/// What the run summary reports of a simulation, read out of its generic type so
+/// that the JSON is built once ([`summary_of`]), not per (precision, dimension,
+/// kernel, layout) instance (a `json!` this size is 3,000 lines of LLVM IR).
+struct SimFacts {
+    phases: mpm_transfer::PhaseTimes,
+    steps: u64,
+    time: f64,
+    wave_speed: f64,
+    bytes_per_particle: usize,
+    reference_kind: &'static str,
+    reference_updates: u64,
+    reference_update_seconds: f64,
+    weight_evaluations: u64,
+    kernel: &'static str,
+    layout: &'static str,
+    grids: usize,
+    nodes_per_particle: usize,
+    active_nodes: usize,
+    active_blocks: usize,
+    grid_bytes: usize,
+    integrator: Integrator,
+    newton: NewtonSettings,
+    solver: mpm_aul::SolverTotals,
+}
+
+/// The run's own figures for [`summary_of`].
+struct RunFacts {
+    particles: usize,
+    wall: f64,
+    output_seconds: f64,
+    frames: usize,
+}
+
+/// The run summary (`summary.json`) from [`SimFacts`].
+fn summary_of(
+    scene: &Scene,
+    opts: &RunOptions,
+    sim: &SimFacts,
+    run: &RunFacts,
+    t: &Totals,
+    outcome: &Result<(), RunError>,
+) -> serde_json::Value {
+    let phases = sim.phases;
+    let particle_steps = sim.steps as f64 * run.particles as f64;
     let step_seconds = phases.sort + phases.p2g + phases.grid_update + phases.g2p;
-    let nodes_per_particle = K::NODES_PER_AXIS.pow(D as u32) * L::GRIDS;
     json!({
         "status": if outcome.is_ok() { "completed" } else { "stopped" },
         "error": outcome.as_ref().err().map(|e| e.to_string()),
@@ -1086,22 +1157,22 @@ fn summary_json<T: Real, const D: usize, K: Kernel, L: GridLayout>(
             "mpm": env!("CARGO_PKG_VERSION"),
         },
         "threads": opts.threads,
-        "particles": particles,
-        "bytes_per_particle": sim.bytes_per_particle(),
+        "particles": run.particles,
+        "bytes_per_particle": sim.bytes_per_particle,
         "reference": {
-            "kind": mpm_aul::ReferenceConfig::name(&sim.reference),
+            "kind": sim.reference_kind,
             "updates": sim.reference_updates,
-            "update_seconds": sim.reference_update_seconds(),
-            "weight_evaluations": sim.weight_evaluations(),
+            "update_seconds": sim.reference_update_seconds,
+            "weight_evaluations": sim.weight_evaluations,
         },
         "grid": {
-            "kernel": K::NAME,
-            "layout": L::NAME,
-            "grids": L::GRIDS,
-            "nodes_per_particle": nodes_per_particle,
-            "active_nodes": sim.grid().node_count(),
-            "active_blocks": sim.grid().block_count(),
-            "bytes": sim.grid().heap_bytes(),
+            "kernel": sim.kernel,
+            "layout": sim.layout,
+            "grids": sim.grids,
+            "nodes_per_particle": sim.nodes_per_particle,
+            "active_nodes": sim.active_nodes,
+            "active_blocks": sim.active_blocks,
+            "bytes": sim.grid_bytes,
         },
         "integrator": {
             "kind": integrator_name(sim.integrator),
@@ -1110,14 +1181,14 @@ fn summary_json<T: Real, const D: usize, K: Kernel, L: GridLayout>(
             "mean_newton_iterations_per_step": if sim.solver.steps > 0 { sim.solver.newton_iterations as f64 / sim.solver.steps as f64 } else { 0.0 },
             "mean_cg_iterations_per_step": if sim.solver.steps > 0 { sim.solver.cg_iterations as f64 / sim.solver.steps as f64 } else { 0.0 },
         },
-        "frames_written": frames + 1,
+        "frames_written": run.frames + 1,
         "steps": sim.steps,
         "simulated_time": sim.time,
-        "wave_speed": sim.wave_speed().to_f64(),
+        "wave_speed": sim.wave_speed,
         "timings": {
-            "total_wall_seconds": wall,
+            "total_wall_seconds": run.wall,
             "step_seconds": step_seconds,
-            "output_seconds": output_seconds,
+            "output_seconds": run.output_seconds,
             "particle_steps_per_second": if step_seconds > 0.0 { particle_steps / step_seconds } else { 0.0 },
             "phase_seconds": phases,
         },

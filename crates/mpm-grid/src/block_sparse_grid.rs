@@ -12,7 +12,7 @@
 //! `G − δ`, `δ ∈ {0,1}^D`, in a fixed order. No atomics, no locks, and the result does
 //! not depend on the number of threads.
 
-use mpm_math::{flush_subnormals, Real, Vector};
+use mpm_math::{flush_subnormals, ErasedLoops, Real, Vector};
 use rayon::prelude::*;
 // A fixed, fast hash (rustc's FxHash): the keys are small integer triples, the maps
 // are never iterated for results, and SipHash showed up in profiles of `bin`.
@@ -712,7 +712,7 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
         )
             .into_par_iter()
             .enumerate()
-            .for_each(|(h, (nodes, imp, pos))| {
+            .for_each_erased(&|(h, (nodes, imp, pos))| {
                 nodes.fill([T::zero(); 4]);
                 imp.fill(zero);
                 pos.fill(zero);
@@ -929,13 +929,7 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
         // Every entry is written below, in parallel (zero where there is no mass).
         resize_stale(&mut self.velocity, total, zero);
         if keep_old {
-            resize_stale(&mut self.velocity_old, total, zero);
-            self.velocity_old
-                .par_iter_mut()
-                .zip(self.mass.par_iter().zip(self.momentum.par_iter()))
-                .for_each(|(vo, (m, p))| {
-                    *vo = if *m > T::zero() { p / *m } else { zero };
-                });
+            self.set_velocity_old();
         } else {
             self.velocity_old.clear();
         }
@@ -949,7 +943,7 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
         self.velocity
             .par_chunks_mut(npb)
             .enumerate()
-            .for_each(|(chunk, v)| {
+            .for_each_erased(&|(chunk, v)| {
                 flush_subnormals(|| {
                     let grid = chunk / n_blocks;
                     let block = blocks[chunk % n_blocks];
@@ -973,6 +967,20 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
             });
     }
 
+    /// `velocity_old = momentum/mass` (zero without mass), for [`Self::update`]
+    /// (not generic over its closure: one copy of the parallel loop).
+    fn set_velocity_old(&mut self) {
+        let zero = Vector::<T, D>::zeros();
+        let total = self.node_count();
+        resize_stale(&mut self.velocity_old, total, zero);
+        self.velocity_old
+            .par_iter_mut()
+            .zip(self.mass.par_iter().zip(self.momentum.par_iter()))
+            .for_each(|(vo, (m, p))| {
+                *vo = if *m > T::zero() { p / *m } else { zero };
+            });
+    }
+
     /// Fills `out` (one value per node, flat order) with `f(grid, node_index)` for
     /// every node, with or without mass, in parallel over blocks. For per-node state
     /// that outlives a step, such as the moving node positions of a Lagrangian
@@ -989,7 +997,7 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
         refill(out, self.node_count(), first);
         out.par_chunks_mut(npb)
             .enumerate()
-            .for_each(|(chunk, values)| {
+            .for_each_erased(&|(chunk, values)| {
                 let grid = chunk / n_blocks;
                 let block = blocks[chunk % n_blocks];
                 for (l, value) in values.iter_mut().enumerate() {

@@ -2,16 +2,19 @@
 //! (implemented for `f32` and `f64`), fixed-size vectors and matrices generic over
 //! the dimension `D` (2 or 3), and the few small-matrix operations every crate needs
 //! (determinant, cofactor, inverse, rotation-variant SVD, polar decomposition and a
-//! fast polar rotation).
+//! fast polar rotation), plus [`ErasedLoops`], the parallel loops' bodies behind
+//! `&dyn` that keep the crates' compile time in check.
 //!
 //! nalgebra's decompositions need dimension bounds that a plain `const D: usize`
 //! cannot satisfy, so the functions here dispatch on `D` (a compile-time constant:
 //! the branch folds away) to nalgebra's 2×2 and 3×3 types.
 
+mod erased_loops;
 mod polar;
 mod small;
 mod subnormals;
 
+pub use erased_loops::ErasedLoops;
 pub use nalgebra;
 pub use polar::{polar_rotation, polar_rotations};
 pub use small::*;

@@ -13,7 +13,7 @@ use crate::{advect_checked, StepError};
 use mpm_constitutive::{Material, StateMut};
 use mpm_grid::{optional_chunks, BlockSparseGrid, Collider, GridLayout, BLOCK};
 use mpm_kernels::{Kernel, Stencil, StencilLanes, STENCIL_LANES};
-use mpm_math::{flush_subnormals, try_inverse, zero_matrix, Matrix, Real, Vector};
+use mpm_math::{flush_subnormals, try_inverse, zero_matrix, ErasedLoops, Matrix, Real, Vector};
 use rayon::prelude::*;
 use std::marker::PhantomData;
 use std::ops::Range;
@@ -394,18 +394,19 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
     pub(crate) fn home_cells(&mut self, particles: &Particles<T, D>, h: T) {
         let inv_h = T::one() / h;
         let off = T::lit(Self::home_offset());
-        self.cells.clear();
+        // Every entry is overwritten below: only a new particle count resizes.
+        self.cells.resize(particles.len(), [0; D]);
         particles
             .x
-            .par_iter()
-            .map(|x| {
-                let mut c = [0i32; D];
-                for a in 0..D {
-                    c[a] = K::base_node(x[a] * inv_h - off);
+            .par_chunks(PARTICLE_CHUNK)
+            .zip(self.cells.par_chunks_mut(PARTICLE_CHUNK))
+            .for_each_erased(&|(xs, cells)| {
+                for (x, c) in xs.iter().zip(cells) {
+                    for a in 0..D {
+                        c[a] = K::base_node(x[a] * inv_h - off);
+                    }
                 }
-                c
-            })
-            .collect_into_vec(&mut self.cells);
+            });
     }
 
     /// P2G: `m_i = Σ w m_p`, `m_i v_i = Σ w m_p (v_p + C_p r)` and the stress impulse
@@ -552,7 +553,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
             .par_chunks_mut(npp)
             .zip(vectors.par_chunks_mut(npp))
             .enumerate()
-            .for_each(|(p, (ns, vs))| {
+            .for_each_erased(&|(p, (ns, vs))| {
                 let x = particles.x[p];
                 let st = stencils::<T, D, K, L>(&x, inv_h);
                 let d_inv = if mls {
@@ -706,7 +707,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
         )
             .into_par_iter()
             .enumerate()
-            .filter_map(|(c, (xs, vs, as_, fs, qs, js, ls))| {
+            .map_erased(&|(c, (xs, vs, as_, fs, qs, js, ls))| {
                 flush_subnormals(|| {
                     let mut worst: Option<StepError> = None;
                     let mut as_ = as_.iter_mut();
@@ -747,6 +748,9 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
                     worst
                 })
             })
+            .collect::<Vec<Option<StepError>>>()
+            .into_iter()
+            .flatten()
             .min_by_key(|e| e.particle());
         match first_error {
             Some(e) => Err(e),
