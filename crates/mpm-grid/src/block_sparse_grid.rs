@@ -536,6 +536,9 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
             .collect();
         homes.par_sort_unstable_by(block_order);
         homes.dedup();
+        // Most steps keep the same home blocks, and with them the grid blocks and
+        // their neighbour tables (built below only when the set changes).
+        let same_blocks = homes == self.home_blocks;
         self.home_blocks = homes;
         let home_index: HashMap<[i32; D], u32> = self
             .home_blocks
@@ -600,7 +603,16 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
                 }
             });
 
-        // Grid blocks: every home block and its upper neighbours.
+        if !same_blocks {
+            self.activate_home_neighbourhoods(&home_index);
+        }
+        order
+    }
+
+    /// The grid blocks (every home block and its upper neighbours), their index, each
+    /// home block's neighbours and each grid block's source home buffers, from
+    /// `self.home_blocks` (`home_index`: home block → its index).
+    fn activate_home_neighbourhoods(&mut self, home_index: &HashMap<[i32; D], u32>) {
         let mut all: Vec<[i32; D]> = Vec::with_capacity(self.home_blocks.len() << D);
         for hb in &self.home_blocks {
             for code in 0..(1usize << D) {
@@ -652,7 +664,6 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
                 s
             })
             .collect();
-        order
     }
 
     /// Scatters particles into the grid: `f(home, particles, buffer)` is called once per home
@@ -1173,6 +1184,34 @@ mod tests {
             .home_index(&[100, 100, 100])
             .expect("halo block is a home block");
         assert!(g.home_range(h).is_empty());
+    }
+
+    /// Re-binning reuses the block tables while the home blocks stay the same and
+    /// rebuilds them when they change: after any sequence of bins, the tables are
+    /// those of a fresh grid binned once with the last cells.
+    #[test]
+    fn rebinning_keeps_the_tables_of_a_fresh_bin() {
+        let a: Vec<[i32; 3]> = (0..300).map(|i| [i % 9, i / 9 % 7, i / 63]).collect();
+        // Same home blocks as `a`, other cells and order.
+        let a_moved: Vec<[i32; 3]> = a.iter().rev().map(|c| c.map(|v| v / 4 * 4)).collect();
+        let b: Vec<[i32; 3]> = a.iter().map(|c| [c[0] - 5, c[2] * 3, c[1] + 9]).collect();
+        let tables = |g: &BlockSparseGrid<f32, 3>| {
+            (
+                g.blocks.clone(),
+                g.home_blocks.clone(),
+                g.home_neighbors.clone(),
+                g.grid_sources.clone(),
+                g.block_index.clone(),
+            )
+        };
+        let mut g = BlockSparseGrid::<f32, 3>::new(2);
+        for cells in [&a, &a_moved, &b, &b, &a, &a_moved] {
+            g.bin(cells);
+            let mut fresh = BlockSparseGrid::<f32, 3>::new(2);
+            fresh.bin(cells);
+            assert!(tables(&g) == tables(&fresh));
+            assert_eq!(g.home_of_sorted(), fresh.home_of_sorted());
+        }
     }
 
     #[test]
