@@ -408,7 +408,6 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> UpdatedLagrangianStepper
     pub fn rebuild(&mut self, particles: &mut Particles<T, D>, h: T) -> Result<(), StepError> {
         let t0 = Instant::now();
         let inv_h = T::one() / h;
-        self.cells.clear();
         let this = &*self;
         let mut cells = vec![[0i32; D]; particles.len()];
         cells
