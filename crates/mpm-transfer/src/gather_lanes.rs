@@ -134,7 +134,7 @@ impl<T: Real, const D: usize, K: Kernel, G: GridLayout> RunGather<T, D> for Lane
                 return unsafe { sums_avx2::<T, D, K, G>(args, out) };
             }
         }
-        sums_lanes::<T, D, K, G>(args, out);
+        sums_lanes::<T, D, K, G, false>(args, out);
     }
 }
 
@@ -156,7 +156,7 @@ fn sums_avx512<T: Real, const D: usize, K: Kernel, G: GridLayout>(
     args: SumArgs<'_, T, D>,
     out: &mut [Gathered<T, D>],
 ) {
-    sums_lanes::<T, D, K, G>(args, out);
+    sums_lanes::<T, D, K, G, true>(args, out);
 }
 
 /// [`sums_lanes`] compiled for AVX2.
@@ -166,7 +166,7 @@ fn sums_avx2<T: Real, const D: usize, K: Kernel, G: GridLayout>(
     args: SumArgs<'_, T, D>,
     out: &mut [Gathered<T, D>],
 ) {
-    sums_lanes::<T, D, K, G>(args, out);
+    sums_lanes::<T, D, K, G, false>(args, out);
 }
 
 /// `a[c][l] += b[c][l] * s[l]` for every component `c` and lane `l`.
@@ -199,10 +199,83 @@ fn load_lanes<T: Real, const D: usize>(
     v
 }
 
+/// The velocities of the `n` nodes of a stencil row, `first[l] + offset + j₀` for
+/// `j₀ < n`, per lane: with `AVX512` (the caller is compiled for it) and `f32` on a
+/// CPU with AVX-512F, two neighbouring nodes at a time,
+/// one 64-bit gather per eight lanes and component (half the gathered elements of
+/// [`load_lanes`]), split into the two nodes by a permute.
+#[inline(always)]
+fn load_row<T: Real, const D: usize, const AVX512: bool>(
+    tile: &[[T; TILE_NODES]; D],
+    first: &[isize; LANES],
+    offset: isize,
+    n: usize,
+) -> [[Lanes<T>; D]; MAX_NODES_PER_AXIS] {
+    let mut v = [[[T::zero(); LANES]; D]; MAX_NODES_PER_AXIS];
+    let mut j0 = 0;
+    #[cfg(target_arch = "x86_64")]
+    if AVX512
+        && std::any::TypeId::of::<T>() == std::any::TypeId::of::<f32>()
+        && std::is_x86_feature_detected!("avx512f")
+    {
+        while j0 + 1 < n {
+            // SAFETY: the CPU has AVX-512F (just detected); `T` is `f32`, so the
+            // casts view the same values.
+            unsafe {
+                let tile = &*(tile as *const [[T; TILE_NODES]; D] as *const [[f32; TILE_NODES]; D]);
+                let [a, b] = load_pair_f32_avx512(tile, first, offset + j0 as isize);
+                v[j0] = *(&a as *const [Lanes<f32>; D] as *const [Lanes<T>; D]);
+                v[j0 + 1] = *(&b as *const [Lanes<f32>; D] as *const [Lanes<T>; D]);
+            }
+            j0 += 2;
+        }
+    }
+    while j0 < n {
+        v[j0] = load_lanes(tile, first, offset + j0 as isize);
+        j0 += 1;
+    }
+    v
+}
+
+/// [`load_lanes`] of the nodes at `offset` and `offset + 1` with AVX-512F: per
+/// component, lanes 0–7 and 8–15 each gather 64-bit pairs, which two permutes
+/// split into the two nodes. Indices are clamped so that both nodes lie in the
+/// tile (as in [`load_lanes`], only a non-finite position reaches the clamp).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+unsafe fn load_pair_f32_avx512<const D: usize>(
+    tile: &[[f32; TILE_NODES]; D],
+    first: &[isize; LANES],
+    offset: isize,
+) -> [[Lanes<f32>; D]; 2] {
+    use std::arch::x86_64::*;
+    let mut index = [0i32; LANES];
+    for l in 0..LANES {
+        index[l] = (first[l] + offset).clamp(0, TILE_NODES as isize - 2) as i32;
+    }
+    let mut out = [[[0f32; LANES]; D]; 2];
+    // SAFETY: every index and the one after it lie in each component's tile;
+    // unaligned loads and stores on arrays of the right length.
+    unsafe {
+        let low = _mm256_loadu_si256(index.as_ptr() as *const __m256i);
+        let high = _mm256_loadu_si256(index.as_ptr().add(8) as *const __m256i);
+        let even = _mm512_setr_epi32(0, 2, 4, 6, 8, 10, 12, 14, 16, 18, 20, 22, 24, 26, 28, 30);
+        let odd = _mm512_setr_epi32(1, 3, 5, 7, 9, 11, 13, 15, 17, 19, 21, 23, 25, 27, 29, 31);
+        for c in 0..D {
+            let base = tile[c].as_ptr() as *const f64;
+            let a = _mm512_castpd_ps(_mm512_i32gather_pd::<4>(low, base));
+            let b = _mm512_castpd_ps(_mm512_i32gather_pd::<4>(high, base));
+            _mm512_storeu_ps(out[0][c].as_mut_ptr(), _mm512_permutex2var_ps(a, even, b));
+            _mm512_storeu_ps(out[1][c].as_mut_ptr(), _mm512_permutex2var_ps(a, odd, b));
+        }
+    }
+    out
+}
+
 /// The portable lane code behind [`LaneGather::gather`]. Lanes past the run hold
 /// copies of its last particle (their sums are never read).
 #[inline(always)]
-fn sums_lanes<T: Real, const D: usize, K: Kernel, G: GridLayout>(
+fn sums_lanes<T: Real, const D: usize, K: Kernel, G: GridLayout, const AVX512: bool>(
     (scratch, origin, extent, len, needs, h): SumArgs<'_, T, D>,
     out: &mut [Gathered<T, D>],
 ) {
@@ -237,12 +310,15 @@ fn sums_lanes<T: Real, const D: usize, K: Kernel, G: GridLayout>(
             let j = Stencil::<T, D>::local_of::<K>(row * n);
             let (_, w_row) = f.row(&j);
             let row_offset: usize = (1..D).map(|a| j[a] * strides[a]).sum();
-            for j0 in 0..n {
-                // The node velocities, from the tile.
-                let offset = (row_offset + j0) as isize;
-                let v = load_lanes(tile, &first, offset);
+            // The row's node velocities, from the tile.
+            let row_v = load_row::<T, D, AVX512>(tile, &first, row_offset as isize, n);
+            let row_old = if needs.old_velocity {
+                load_row::<T, D, AVX512>(tile_old, &first, row_offset as isize, n)
+            } else {
+                row_v
+            };
+            for (j0, (&v, v_old)) in row_v.iter().zip(&row_old).enumerate().take(n) {
                 if needs.old_velocity {
-                    let v_old = load_lanes(tile_old, &first, offset);
                     for c in 0..D {
                         for l in 0..LANES {
                             let wn = w[0][j0][l] * w_row[l];
@@ -318,6 +394,48 @@ fn sums_lanes<T: Real, const D: usize, K: Kernel, G: GridLayout>(
         }
         if needs.moment_matrix {
             o.moment_matrix = moment_matrix::<T, D, K, G>(&stencils.get::<K>(l), h);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The paired AVX-512 loads give [`load_lanes`]' values bit for bit, for rows
+    /// of 2 to 4 nodes anywhere in the tile (where the CPU lacks AVX-512F, both
+    /// sides run the portable loads).
+    #[test]
+    fn paired_row_loads_match_single_loads() {
+        let mut tile = [[0f32; TILE_NODES]; 3];
+        for (c, t) in tile.iter_mut().enumerate() {
+            for (i, v) in t.iter_mut().enumerate() {
+                *v = (i as f32 + 0.25) * (c as f32 - 1.5) + 1.0 / (i as f32 + 1.0);
+            }
+        }
+        let mut seed = 7u64;
+        for round in 0..200 {
+            let mut first = [0isize; LANES];
+            for f in first.iter_mut() {
+                seed = seed
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                // Every node of the row inside the tile (the clamps differ outside).
+                *f = ((seed >> 33) % (TILE_NODES as u64 - 5)) as isize;
+            }
+            let n = 2 + round % 3;
+            let offset = (round % 3) as isize;
+            let paired = load_row::<f32, 3, true>(&tile, &first, offset, n);
+            let single = load_row::<f32, 3, false>(&tile, &first, offset, n);
+            for j in 0..n {
+                let expected = load_lanes(&tile, &first, offset + j as isize);
+                for c in 0..3 {
+                    for l in 0..LANES {
+                        assert_eq!(paired[j][c][l].to_bits(), expected[c][l].to_bits());
+                        assert_eq!(single[j][c][l].to_bits(), expected[c][l].to_bits());
+                    }
+                }
+            }
         }
     }
 }
