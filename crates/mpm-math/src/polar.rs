@@ -76,14 +76,16 @@ fn newton_polar_3d<T: Real, const D: usize>(f: &Matrix<T, D>) -> Option<Matrix<T
     let mut scaled = true;
     for _ in 0..MAX_NEWTON {
         let cof = cofactor(&x);
-        // X⁻ᵀ = cof(X)/det(X), ‖X⁻¹‖_F = ‖cof X‖_F/|det X|.
-        let inv_t = cof / det;
+        // X⁻ᵀ = cof(X)/det(X), ‖X⁻¹‖_F = ‖cof X‖_F/|det X|. One division per step,
+        // its reciprocal multiplied in (the vector divisions were a third of the
+        // batch's time).
+        let inv_t = cof * (T::one() / det);
         let zeta = if scaled {
             (inv_t.norm() / x_norm).sqrt()
         } else {
             T::one()
         };
-        let next = (x * zeta + inv_t / zeta) * T::lit(0.5);
+        let next = (x * zeta + inv_t * (T::one() / zeta)) * T::lit(0.5);
         let change = (next - x).norm();
         x = next;
         if !scaled {
@@ -243,28 +245,34 @@ fn newton_polar_lanes<T: Real>(x: &mut LaneMatrix<T>) -> [bool; LANES] {
             break;
         }
         // X⁻ᵀ = cof(X)/det(X), each entry in the order of `cofactor`.
+        let mut inv_det = [T::zero(); LANES];
+        for l in 0..LANES {
+            inv_det[l] = T::one() / det[l];
+        }
         for i in 0..3 {
             let (i1, i2) = ((i + 1) % 3, (i + 2) % 3);
             for j in 0..3 {
                 let (j1, j2) = ((j + 1) % 3, (j + 2) % 3);
                 for l in 0..LANES {
                     inv_t[i][j][l] =
-                        (x[i1][j1][l] * x[i2][j2][l] - x[i1][j2][l] * x[i2][j1][l]) / det[l];
+                        (x[i1][j1][l] * x[i2][j2][l] - x[i1][j2][l] * x[i2][j1][l]) * inv_det[l];
                 }
             }
         }
         let inv_norm = frobenius(&inv_t);
         // Selects rather than branches, so that the lanes stay vector code.
         let mut zeta = [T::one(); LANES];
+        let mut inv_zeta = [T::one(); LANES];
         for l in 0..LANES {
             let z = (inv_norm[l] / x_norm[l]).sqrt();
             zeta[l] = if scaled[l] { z } else { T::one() };
+            inv_zeta[l] = T::one() / zeta[l];
         }
         // X ← ½(ζX + ζ⁻¹X⁻ᵀ) on running lanes; `step` keeps next − X for the test.
         for i in 0..3 {
             for j in 0..3 {
                 for l in 0..LANES {
-                    let next = (x[i][j][l] * zeta[l] + inv_t[i][j][l] / zeta[l]) * half;
+                    let next = (x[i][j][l] * zeta[l] + inv_t[i][j][l] * inv_zeta[l]) * half;
                     step[i][j][l] = next - x[i][j][l];
                     x[i][j][l] = if running[l] { next } else { x[i][j][l] };
                 }

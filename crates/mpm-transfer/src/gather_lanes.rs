@@ -242,6 +242,7 @@ fn load_row<T: Real, const D: usize, const AVX512: bool>(
 /// split into the two nodes. Indices are clamped so that both nodes lie in the
 /// tile (as in [`load_lanes`], only a non-finite position reaches the clamp).
 #[cfg(target_arch = "x86_64")]
+#[inline]
 #[target_feature(enable = "avx512f")]
 unsafe fn load_pair_f32_avx512<const D: usize>(
     tile: &[[f32; TILE_NODES]; D],
