@@ -256,8 +256,48 @@ impl<T: Real> Material<T> {
     /// (`F ← (I + Δt L) F` and the plastic projection, or `J ← J det(I + Δt L)`),
     /// stores `viscous_gradient` for viscous fluids, then checks that the state is
     /// finite and admissible.
-    #[inline]
+    #[inline(always)]
     pub fn advance<const D: usize>(
+        &self,
+        s: &mut StateMut<'_, T, D>,
+        l: &Matrix<T, D>,
+        viscous_gradient: &Matrix<T, D>,
+        dt: T,
+    ) -> Result<(), StateFault> {
+        // The two common cases inline into G2P's loop (compiled for the widest
+        // vectors there); everything else goes out of line.
+        match (self, &mut s.deformation, &s.plastic) {
+            (Material::Elastic(m), Some(f), None) => {
+                **f = (identity::<T, D>() + l * dt) * **f;
+                if !f.iter().all(|c| c.is_finite_real()) {
+                    return Err(StateFault::NonFinite("deformation gradient"));
+                }
+                return if m.is_admissible(f) {
+                    Ok(())
+                } else {
+                    Err(StateFault::Inverted(determinant(f).to_f64()))
+                };
+            }
+            (Material::JFluid(fluid), _, _) if s.velocity_gradient.is_none() => {
+                if let Some(j) = s.jacobian.as_deref_mut() {
+                    *j *= determinant(&(identity::<T, D>() + l * dt));
+                    if !j.is_finite_real() {
+                        return Err(StateFault::NonFinite("volume ratio J"));
+                    }
+                    if !fluid.is_admissible(*j) {
+                        return Err(StateFault::NonPositiveVolume(j.to_f64()));
+                    }
+                }
+                return Ok(());
+            }
+            _ => {}
+        }
+        self.advance_general(s, l, viscous_gradient, dt)
+    }
+
+    /// [`Self::advance`] for every model and state.
+    #[inline(never)]
+    fn advance_general<const D: usize>(
         &self,
         s: &mut StateMut<'_, T, D>,
         l: &Matrix<T, D>,
@@ -306,5 +346,81 @@ impl<T: Real> Material<T> {
         } else {
             Err(StateFault::Inverted(determinant(f).to_f64()))
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{FixedCorotated, NeoHookean};
+
+    /// Entries in [-1, 1) from a fixed linear congruential sequence.
+    fn entries(seed: &mut u64) -> f64 {
+        *seed = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        ((*seed >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
+    }
+
+    fn matrix(seed: &mut u64, scale: f64) -> Matrix<f64, 3> {
+        Matrix::<f64, 3>::from_fn(|_, _| entries(seed) * scale)
+    }
+
+    fn state<'a>(fluid: bool, f: &'a mut Matrix<f64, 3>, j: &'a mut f64) -> StateMut<'a, f64, 3> {
+        let (f, j) = if fluid {
+            (None, Some(j))
+        } else {
+            (Some(f), None)
+        };
+        StateMut {
+            deformation: f,
+            plastic: None,
+            jacobian: j,
+            velocity_gradient: None,
+        }
+    }
+
+    /// The inlined fast cases of `advance` (elastic `F`, inviscid `J`) give the
+    /// general path's state and fault exactly: on mild and on inverting or
+    /// non-finite velocity gradients.
+    #[test]
+    fn fast_advance_matches_the_general_path() {
+        let models = [
+            Material::Elastic(FixedCorotated::from_young_poisson(1e5, 0.3).unwrap().into()),
+            Material::Elastic(NeoHookean::from_young_poisson(1e5, 0.3).unwrap().into()),
+            Material::JFluid(JFluid::new(1e4, 7.0, 0.0).unwrap()),
+        ];
+        let mut seed = 3u64;
+        let mut faults = 0;
+        for round in 0..600 {
+            // Mild gradients, ones that invert F or J in one step, and a NaN.
+            let scale = [0.1, 40.0, 400.0][round % 3];
+            let mut l = matrix(&mut seed, scale);
+            if round % 97 == 0 {
+                l[(1, 2)] = f64::NAN;
+            }
+            let f0 = Matrix::<f64, 3>::identity() + matrix(&mut seed, 0.3);
+            let j0 = 1.0 + 0.3 * entries(&mut seed);
+            for model in &models {
+                let (mut f_fast, mut f_general) = (f0, f0);
+                let (mut j_fast, mut j_general) = (j0, j0);
+                let fluid = matches!(model, Material::JFluid(_));
+                let fast = model.advance(&mut state(fluid, &mut f_fast, &mut j_fast), &l, &l, 0.01);
+                let general = model.advance_general(
+                    &mut state(fluid, &mut f_general, &mut j_general),
+                    &l,
+                    &l,
+                    0.01,
+                );
+                assert_eq!(fast, general, "round {round}");
+                faults += usize::from(fast.is_err());
+                for (a, b) in f_fast.iter().zip(f_general.iter()) {
+                    assert_eq!(a.to_bits(), b.to_bits(), "round {round}");
+                }
+                assert_eq!(j_fast.to_bits(), j_general.to_bits(), "round {round}");
+            }
+        }
+        // Both outcomes were exercised.
+        assert!(faults > 50 && faults < 1500, "{faults} faults");
     }
 }
