@@ -709,52 +709,43 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
             .enumerate()
             .map_erased(&|(c, (xs, vs, as_, fs, qs, js, ls))| {
                 flush_subnormals(|| {
-                    widest_vectors(|| {
-                        let mut worst: Option<StepError> = None;
-                        let mut as_ = as_.iter_mut();
-                        let mut fs = fs.iter_mut();
-                        let mut qs = qs.iter_mut();
-                        let mut js = js.iter_mut();
-                        let mut ls = ls.iter_mut();
-                        let mut gathered = [Gathered::zeros(); STENCIL_LANES];
-                        let mut scratch = gather.scratch();
-                        let start = c * PARTICLE_CHUNK;
-                        let homes = &homes[start..start + xs.len()];
-                        let mut s = 0;
-                        while s < xs.len() {
-                            // A run: up to STENCIL_LANES particles of one home block, every
-                            // sum gathered at the positions before advection.
-                            let home = homes[s];
-                            let mut e = s + 1;
-                            while e < xs.len() && e - s < STENCIL_LANES && homes[e] == home {
-                                e += 1;
-                            }
-                            gather.gather(
-                                &mut scratch,
-                                grid,
-                                home,
-                                &xs[s..e],
-                                &needs,
-                                &mut gathered,
-                            );
-                            for k in s..e {
-                                let state = StateMut {
-                                    deformation: fs.next(),
-                                    plastic: qs.next(),
-                                    jacobian: js.next(),
-                                    velocity_gradient: ls.next(),
-                                };
-                                let (xp, vp) = (&mut xs[k], &mut vs[k]);
-                                if let Some(e) =
-                                    one(start + k, &gathered[k - s], xp, vp, as_.next(), state)
-                                {
-                                    worst = Some(e.lowest(worst));
-                                }
-                            }
-                            s = e;
+                    let mut worst: Option<StepError> = None;
+                    let mut as_ = as_.iter_mut();
+                    let mut fs = fs.iter_mut();
+                    let mut qs = qs.iter_mut();
+                    let mut js = js.iter_mut();
+                    let mut ls = ls.iter_mut();
+                    let mut gathered = [Gathered::zeros(); STENCIL_LANES];
+                    let mut scratch = gather.scratch();
+                    let start = c * PARTICLE_CHUNK;
+                    let homes = &homes[start..start + xs.len()];
+                    let mut s = 0;
+                    while s < xs.len() {
+                        // A run: up to STENCIL_LANES particles of one home block, every
+                        // sum gathered at the positions before advection.
+                        let home = homes[s];
+                        let mut e = s + 1;
+                        while e < xs.len() && e - s < STENCIL_LANES && homes[e] == home {
+                            e += 1;
                         }
-                        worst
-                    })
+                        gather.gather(&mut scratch, grid, home, &xs[s..e], &needs, &mut gathered);
+                        for k in s..e {
+                            let state = StateMut {
+                                deformation: fs.next(),
+                                plastic: qs.next(),
+                                jacobian: js.next(),
+                                velocity_gradient: ls.next(),
+                            };
+                            let (xp, vp) = (&mut xs[k], &mut vs[k]);
+                            if let Some(e) =
+                                one(start + k, &gathered[k - s], xp, vp, as_.next(), state)
+                            {
+                                worst = Some(e.lowest(worst));
+                            }
+                        }
+                        s = e;
+                    }
+                    worst
                 })
             })
             .collect::<Vec<Option<StepError>>>()
@@ -783,32 +774,6 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
         });
         t
     }
-}
-
-/// `f()` compiled for AVX-512 where the CPU has it, for G2P's run loop: besides the
-/// lane gather (dispatched on its own) it holds scalar per-particle code (the
-/// scheme's update, advection, the constitutive `advance`) that runs faster built
-/// for the wider target: G2P 5–12 % less time per step on jelly and dam S, 1 thread
-/// (`mpm bench`, three A/B rounds). Rust never contracts into FMA, so the bits are
-/// those of the plain build. Not used for P2G's per-particle terms, which the same
-/// wrapper made slower (25.5 → 28.2 ms, compact).
-#[inline(always)]
-fn widest_vectors<R>(f: impl FnOnce() -> R) -> R {
-    #[cfg(target_arch = "x86_64")]
-    {
-        if std::is_x86_feature_detected!("avx512f") {
-            // SAFETY: the CPU has the feature just detected.
-            return unsafe { with_avx512(f) };
-        }
-    }
-    f()
-}
-
-/// [`widest_vectors`]' AVX-512 build of `f`.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f")]
-fn with_avx512<R>(f: impl FnOnce() -> R) -> R {
-    f()
 }
 
 #[cfg(test)]
