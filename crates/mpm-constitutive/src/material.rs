@@ -196,6 +196,10 @@ impl<T: Real> Material<T> {
             Material::Elastic(m) if deformation.len() == out.len() => {
                 m.kirchhoff_stresses(deformation, out)
             }
+            // The viscous part is absent (inviscid) or not wanted (`elastic_only`).
+            Material::JFluid(m) if elastic_only || !m.needs_velocity_gradient() => {
+                m.inviscid_kirchhoff_stresses(|k| state(k).jacobian.unwrap_or_else(T::one), out)
+            }
             _ => {
                 for (k, tau) in out.iter_mut().enumerate() {
                     *tau = if elastic_only {
@@ -422,5 +426,38 @@ mod tests {
         }
         // Both outcomes were exercised.
         assert!(faults > 50 && faults < 1500, "{faults} faults");
+    }
+
+    /// A run of fluid stresses (inviscid, and viscous with `elastic_only`) equals
+    /// the stress of each particle, bit for bit; viscous without `elastic_only`
+    /// keeps its viscous part.
+    #[test]
+    fn fluid_stress_runs_match_one_at_a_time() {
+        let mut seed = 11u64;
+        let js: Vec<f64> = (0..64).map(|_| 1.0 + 0.4 * entries(&mut seed)).collect();
+        let ls: Vec<Matrix<f64, 3>> = (0..64).map(|_| matrix(&mut seed, 2.0)).collect();
+        for viscosity in [0.0, 0.3] {
+            let model = Material::JFluid(JFluid::new(1e4, 7.0, viscosity).unwrap());
+            for elastic_only in [false, true] {
+                let state = |k: usize| StateRef {
+                    deformation: None,
+                    plastic: None,
+                    jacobian: Some(js[k]),
+                    velocity_gradient: Some(&ls[k]),
+                };
+                let mut out = vec![Matrix::<f64, 3>::zeros(); js.len()];
+                model.kirchhoff_stresses(&[], state, elastic_only, &mut out);
+                for (k, tau) in out.iter().enumerate() {
+                    let one = if elastic_only {
+                        model.kirchhoff_stress_parts(&state(k)).0
+                    } else {
+                        model.kirchhoff_stress(&state(k))
+                    };
+                    for (a, b) in tau.iter().zip(one.iter()) {
+                        assert_eq!(a.to_bits(), b.to_bits(), "μ {viscosity}, particle {k}");
+                    }
+                }
+            }
+        }
     }
 }
