@@ -8,7 +8,7 @@ use crate::ConstitutiveError;
 use mpm_math::{Matrix, Real};
 use serde::{Deserialize, Serialize};
 
-/// Largest `γ` that [`JFluid::inverse_power`] raises by repeated squaring.
+/// Largest `γ` for which `J^{−γ}` is taken by repeated squaring.
 pub const MAX_INTEGER_GAMMA: u32 = 64;
 
 /// `x^n` by repeated squaring, in `f64`.
@@ -81,7 +81,7 @@ impl<T: Real> JFluid<T> {
     }
 
     /// `γ` where it is an integer from 1 to [`MAX_INTEGER_GAMMA`] (the usual 1 and 7
-    /// are): [`Self::inverse_power`] then multiplies instead of calling `powf`.
+    /// are): `J^{−γ}` is then a product instead of a `powf` call.
     #[inline]
     pub fn integer_gamma(&self) -> Option<u32> {
         let g = self.gamma.to_f64();
@@ -95,7 +95,7 @@ impl<T: Real> JFluid<T> {
     /// (exact rounding for `γ = 1`, where `f64` division rounded to `f32` is the
     /// correctly rounded quotient) and several times cheaper. Otherwise `powf`.
     #[inline]
-    pub fn inverse_power(&self, gamma: Option<u32>, j: T) -> T {
+    fn inverse_power(&self, gamma: Option<u32>, j: T) -> T {
         match gamma {
             Some(n) if T::EPSILON.to_f64() > 1e-10 => T::lit(1.0 / power_f64(j.to_f64(), n)),
             _ => j.powf(-self.gamma),
@@ -104,7 +104,7 @@ impl<T: Real> JFluid<T> {
 
     /// [`Self::pressure`] with `gamma` = [`Self::integer_gamma`].
     #[inline]
-    pub fn pressure_with(&self, gamma: Option<u32>, j: T) -> T {
+    fn pressure_with(&self, gamma: Option<u32>, j: T) -> T {
         self.bulk_modulus * (self.inverse_power(gamma, j) - T::one())
     }
 

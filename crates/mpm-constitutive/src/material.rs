@@ -268,8 +268,9 @@ impl<T: Real> Material<T> {
         viscous_gradient: &Matrix<T, D>,
         dt: T,
     ) -> Result<(), StateFault> {
-        // The two common cases inline into G2P's loop (compiled for the widest
-        // vectors there); everything else goes out of line.
+        // The two common cases inline into G2P's particle loop (no call, and the
+        // state stays in registers); everything else goes out of line, so that the
+        // loop stays small.
         match (self, &mut s.deformation, &s.plastic) {
             (Material::Elastic(m), Some(f), None) => {
                 **f = (identity::<T, D>() + l * dt) * **f;
