@@ -458,6 +458,8 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
         let viscous = particles.needs.velocity_gradient && !gradient_form;
         let need_moment = (affine || mls || viscous) && !gradient_form;
         let separate = scheme.needs(gradient_form).old_velocity;
+        // FLIP's impulse takes the MLS part as computed, signed zeros included.
+        let has_mls_part = mls || viscous || separate;
         let p = particles;
         self.grid.scatter_local(
             Self::buffer_extent(),
@@ -501,23 +503,29 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
                             (false, false) => (zero, zero),
                         };
                         let mut stress = elastic * scale;
-                        // The part applied with the MLS gradient `w D⁻¹ r`.
-                        let mut mls_part = viscous_part * scale;
-                        if mls {
-                            mls_part += stress;
-                            stress = zero_matrix::<T, D>();
-                        }
-                        let mls_stress = d_inv.map(|di| mls_part * di);
+                        // The part applied with the MLS gradient `w D⁻¹ r`, where
+                        // there is one (without MLS or viscosity it is zero: skipped).
+                        let ms = if has_mls_part {
+                            let mut mls_part = viscous_part * scale;
+                            if mls {
+                                mls_part += stress;
+                                stress = zero_matrix::<T, D>();
+                            }
+                            d_inv.map(|di| mls_part * di).unwrap_or(zero)
+                        } else {
+                            zero
+                        };
                         let m = p.mass[i];
                         let mv = p.v[i] * m;
                         let mc = c * m;
-                        // `mls_stress · r w` has the form of the affine term `C r w`;
-                        // FLIP keeps the impulse (stress and MLS parts) apart.
-                        let ms = mls_stress.unwrap_or(zero);
+                        // `ms · r w` has the form of the affine term `C r w`; FLIP
+                        // keeps the impulse (stress and MLS parts) apart.
                         if separate {
                             lanes.set(l, m, &mv, &mc, &zero, Some((&ms, &stress)));
-                        } else {
+                        } else if has_mls_part {
                             lanes.set(l, m, &mv, &(mc + ms), &stress, None);
+                        } else {
+                            lanes.set(l, m, &mv, &mc, &stress, None);
                         }
                     }
                     lanes.scatter::<K, L>(stencil_runs.lanes(), end - run, separate, h, buf);
