@@ -136,11 +136,17 @@ impl<T: Real> JFluid<T> {
             Some(l) if self.viscosity != T::zero() => (l + l.transpose()) * (j * self.viscosity),
             _ => Matrix::<T, D>::zeros(),
         };
-        let jp = j * self.pressure(j);
+        self.subtract_pressure(&mut tau, j, self.integer_gamma());
+        tau
+    }
+
+    /// `τ ← τ − J p I`, with `gamma` = [`Self::integer_gamma`].
+    #[inline(always)]
+    fn subtract_pressure<const D: usize>(&self, tau: &mut Matrix<T, D>, j: T, gamma: Option<u32>) {
+        let jp = j * self.pressure_with(gamma, j);
         for i in 0..D {
             tau[(i, i)] -= jp;
         }
-        tau
     }
 
     /// The inviscid Kirchhoff stresses `−J p I` of many particles, bit for bit
@@ -154,12 +160,8 @@ impl<T: Real> JFluid<T> {
     ) {
         let gamma = self.integer_gamma();
         for (k, tau) in out.iter_mut().enumerate() {
-            let j = jacobian(k);
-            let jp = j * self.pressure_with(gamma, j);
             *tau = Matrix::<T, D>::zeros();
-            for i in 0..D {
-                tau[(i, i)] -= jp;
-            }
+            self.subtract_pressure(tau, jacobian(k), gamma);
         }
     }
 

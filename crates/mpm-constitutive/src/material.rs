@@ -273,27 +273,18 @@ impl<T: Real> Material<T> {
         // loop stays small.
         match (self, &mut s.deformation, &s.plastic) {
             (Material::Elastic(m), Some(f), None) => {
-                **f = (identity::<T, D>() + l * dt) * **f;
-                if !f.iter().all(|c| c.is_finite_real()) {
-                    return Err(StateFault::NonFinite("deformation gradient"));
-                }
+                advance_deformation(f, l, dt)?;
                 return if m.is_admissible(f) {
                     Ok(())
                 } else {
-                    Err(StateFault::Inverted(determinant(f).to_f64()))
+                    Err(inverted(f))
                 };
             }
             (Material::JFluid(fluid), _, _) if s.velocity_gradient.is_none() => {
-                if let Some(j) = s.jacobian.as_deref_mut() {
-                    *j *= determinant(&(identity::<T, D>() + l * dt));
-                    if !j.is_finite_real() {
-                        return Err(StateFault::NonFinite("volume ratio J"));
-                    }
-                    if !fluid.is_admissible(*j) {
-                        return Err(StateFault::NonPositiveVolume(j.to_f64()));
-                    }
-                }
-                return Ok(());
+                return match s.jacobian.as_deref_mut() {
+                    Some(j) => advance_volume_ratio(fluid, j, l, dt),
+                    None => Ok(()),
+                };
             }
             _ => {}
         }
@@ -310,15 +301,8 @@ impl<T: Real> Material<T> {
         dt: T,
     ) -> Result<(), StateFault> {
         if let Material::JFluid(fluid) = self {
-            // J ← J det(I + Δt L): the determinant of the same update F would get.
             if let Some(j) = s.jacobian.as_deref_mut() {
-                *j *= determinant(&(identity::<T, D>() + l * dt));
-                if !j.is_finite_real() {
-                    return Err(StateFault::NonFinite("volume ratio J"));
-                }
-                if !fluid.is_admissible(*j) {
-                    return Err(StateFault::NonPositiveVolume(j.to_f64()));
-                }
+                advance_volume_ratio(fluid, j, l, dt)?;
             }
             if let Some(g) = s.velocity_gradient.as_deref_mut() {
                 *g = *viscous_gradient;
@@ -335,9 +319,7 @@ impl<T: Real> Material<T> {
                 return Err(StateFault::NonFinite("plastic state"));
             }
         }
-        if !f.iter().all(|c| c.is_finite_real()) {
-            return Err(StateFault::NonFinite("deformation gradient"));
-        }
+        check_finite_deformation(f)?;
         let admissible = match self {
             Material::Elastic(m) => m.is_admissible(f),
             // Hencky strain needs det F_E > 0; snow's fixed-corotated part does not.
@@ -349,9 +331,54 @@ impl<T: Real> Material<T> {
         if admissible {
             Ok(())
         } else {
-            Err(StateFault::Inverted(determinant(f).to_f64()))
+            Err(inverted(f))
         }
     }
+}
+
+/// `F ← (I + Δt L) F` (no plastic projection), then the check that it is finite.
+#[inline(always)]
+fn advance_deformation<T: Real, const D: usize>(
+    f: &mut Matrix<T, D>,
+    l: &Matrix<T, D>,
+    dt: T,
+) -> Result<(), StateFault> {
+    *f = (identity::<T, D>() + l * dt) * *f;
+    check_finite_deformation(f)
+}
+
+/// A fault unless every entry of `F` is finite.
+#[inline(always)]
+fn check_finite_deformation<T: Real, const D: usize>(f: &Matrix<T, D>) -> Result<(), StateFault> {
+    if f.iter().all(|c| c.is_finite_real()) {
+        Ok(())
+    } else {
+        Err(StateFault::NonFinite("deformation gradient"))
+    }
+}
+
+/// The fault of an inadmissible `F`.
+fn inverted<T: Real, const D: usize>(f: &Matrix<T, D>) -> StateFault {
+    StateFault::Inverted(determinant(f).to_f64())
+}
+
+/// `J ← J det(I + Δt L)` (the determinant of the same update `F` would get), then
+/// the checks that it is finite and admissible.
+#[inline(always)]
+fn advance_volume_ratio<T: Real, const D: usize>(
+    fluid: &JFluid<T>,
+    j: &mut T,
+    l: &Matrix<T, D>,
+    dt: T,
+) -> Result<(), StateFault> {
+    *j *= determinant(&(identity::<T, D>() + l * dt));
+    if !j.is_finite_real() {
+        return Err(StateFault::NonFinite("volume ratio J"));
+    }
+    if !fluid.is_admissible(*j) {
+        return Err(StateFault::NonPositiveVolume(j.to_f64()));
+    }
+    Ok(())
 }
 
 #[cfg(test)]
