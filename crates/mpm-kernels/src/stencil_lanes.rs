@@ -140,16 +140,13 @@ impl<T: Real, const D: usize> StencilLanes<T, D> {
         self.n = K::NODES_PER_AXIS;
         self.inv_h = inv_h;
         self.grids = grids;
-        let Some(last) = xs.len().checked_sub(1) else {
+        if xs.is_empty() {
             return;
-        };
+        }
         // As `Stencil::pair`: grids exactly half a cell apart share the kernel's work.
         let half_apart = grids == 2 && (offsets[1] - offsets[0]).abs() == T::lit(0.5);
-        for a in 0..D {
-            let mut x = [xs[last][a]; STENCIL_LANES];
-            for (xl, p) in x.iter_mut().zip(xs) {
-                *xl = p[a];
-            }
+        let coords = lane_coordinates(xs);
+        for (a, x) in coords.iter().enumerate() {
             let mut xg = [[T::zero(); STENCIL_LANES]; 2];
             for k in 0..grids {
                 for l in 0..STENCIL_LANES {
@@ -205,5 +202,106 @@ impl<T: Real, const D: usize> StencilLanes<T, D> {
             s.frac[a] = self.frac[k][a][l];
         }
         s
+    }
+}
+
+/// The coordinates of `xs` (at least one, at most [`STENCIL_LANES`] positions)
+/// lane-major, `coords[a][l] = xs[l][a]`; lanes past `xs` repeat its last position.
+/// A copy of `xs.len()` scalars into the lanes and then a vector load of them stalls
+/// on store forwarding; a full run of `f32` in 3-D is instead three vector loads and
+/// a transposition in registers on AVX-512.
+#[inline(always)]
+fn lane_coordinates<T: Real, const D: usize>(xs: &[Vector<T, D>]) -> [[T; STENCIL_LANES]; D] {
+    #[cfg(target_arch = "x86_64")]
+    if D == 3
+        && xs.len() == STENCIL_LANES
+        && std::any::TypeId::of::<T>() == std::any::TypeId::of::<f32>()
+        && std::mem::size_of::<Vector<T, D>>() == D * std::mem::size_of::<T>()
+        && std::is_x86_feature_detected!("avx512f")
+    {
+        // SAFETY: the CPU has AVX-512F (just detected). `T` is `f32` and `D` is 3,
+        // and a `Vector<f32, 3>` is its three components (nalgebra's `Matrix` is
+        // `repr(C)` over a `repr(transparent)` array, the size checked above), so
+        // `xs` is 48 consecutive `f32` and the result has the type asked for.
+        unsafe {
+            let flat = &*(xs.as_ptr() as *const [f32; 3 * STENCIL_LANES]);
+            let coords = transpose_16x3_f32_avx512(flat);
+            return *(&coords as *const [[f32; STENCIL_LANES]; 3]
+                as *const [[T; STENCIL_LANES]; D]);
+        }
+    }
+    let last = xs.len() - 1;
+    std::array::from_fn(|a| std::array::from_fn(|l| xs[l.min(last)][a]))
+}
+
+/// `out[a][l] = flat[3 l + a]` for 16 positions of 3 `f32` components: three
+/// vector loads, and per component two permutes (the first picks its elements
+/// among the first 32 values, the second the rest from the last 16).
+#[cfg(target_arch = "x86_64")]
+#[inline]
+#[target_feature(enable = "avx512f")]
+unsafe fn transpose_16x3_f32_avx512(flat: &[f32; 48]) -> [[f32; 16]; 3] {
+    use std::arch::x86_64::*;
+    let mut out = [[0f32; 16]; 3];
+    // SAFETY: unaligned loads of 16 `f32` at offsets 0, 16 and 32 of 48, and
+    // unaligned stores of 16 into each output row.
+    unsafe {
+        let low = _mm512_loadu_ps(flat.as_ptr());
+        let mid = _mm512_loadu_ps(flat.as_ptr().add(16));
+        let high = _mm512_loadu_ps(flat.as_ptr().add(32));
+        for (a, row) in out.iter_mut().enumerate() {
+            // Element `3 l + a` lies in `low`/`mid` (index `3 l + a` of their 32)
+            // when below 32, else in `high` (index `3 l + a − 32`, selected as 16+).
+            let mut first = [0i32; 16];
+            let mut second = [0i32; 16];
+            for l in 0..16 {
+                let e = (3 * l + a) as i32;
+                first[l] = if e < 32 { e } else { 0 };
+                second[l] = if e < 32 { l as i32 } else { 16 + e - 32 };
+            }
+            let first = _mm512_loadu_si512(first.as_ptr() as *const _);
+            let second = _mm512_loadu_si512(second.as_ptr() as *const _);
+            let two = _mm512_permutex2var_ps(low, first, mid);
+            _mm512_storeu_ps(row.as_mut_ptr(), _mm512_permutex2var_ps(two, second, high));
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every lane holds its position's coordinates (lanes past a short run the last
+    /// one's), bit for bit, for full and partial runs of `f32` and `f64` in 2-D and
+    /// 3-D (the full `f32` 3-D run takes the AVX-512 transposition where the CPU
+    /// has it).
+    fn coordinates_match<T: Real, const D: usize>() {
+        let xs: Vec<Vector<T, D>> = (0..STENCIL_LANES)
+            .map(|i| {
+                Vector::<T, D>::from_fn(|a, _| T::lit(i as f64 * 1.25 - a as f64 * 0.375 + 0.1))
+            })
+            .collect();
+        for len in 1..=STENCIL_LANES {
+            let coords = lane_coordinates(&xs[..len]);
+            for (a, row) in coords.iter().enumerate() {
+                for (l, &got) in row.iter().enumerate() {
+                    let want = xs[l.min(len - 1)][a];
+                    assert_eq!(
+                        got.to_f64().to_bits(),
+                        want.to_f64().to_bits(),
+                        "len {len} axis {a} lane {l}"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn lane_coordinates_are_the_positions_transposed() {
+        coordinates_match::<f32, 3>();
+        coordinates_match::<f32, 2>();
+        coordinates_match::<f64, 3>();
+        coordinates_match::<f64, 2>();
     }
 }
