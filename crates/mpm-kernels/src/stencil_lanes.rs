@@ -10,7 +10,7 @@
 //! for bit (tested).
 
 use crate::{Kernel, LaneWeights, Stencil, MAX_NODES_PER_AXIS};
-use mpm_math::{Real, Vector};
+use mpm_math::{to_lanes, Real, Vector, RECORD_LANES};
 
 /// Particles per [`StencilLanes`]: one AVX-512 register of `f32` per quantity (two of
 /// AVX2, four of SSE2).
@@ -206,66 +206,13 @@ impl<T: Real, const D: usize> StencilLanes<T, D> {
 }
 
 /// The coordinates of `xs` (at least one, at most [`STENCIL_LANES`] positions)
-/// lane-major, `coords[a][l] = xs[l][a]`; lanes past `xs` repeat its last position.
-/// A copy of `xs.len()` scalars into the lanes and then a vector load of them stalls
-/// on store forwarding; a full run of `f32` in 3-D is instead three vector loads and
-/// a transposition in registers on AVX-512.
+/// lane-major, `coords[a][l] = xs[l][a]`; lanes past `xs` repeat its last position
+/// ([`to_lanes`]: a full run of `f32` is a transposition in registers, where a copy
+/// into the lanes would stall on store forwarding).
 #[inline(always)]
 fn lane_coordinates<T: Real, const D: usize>(xs: &[Vector<T, D>]) -> [[T; STENCIL_LANES]; D] {
-    #[cfg(target_arch = "x86_64")]
-    if D == 3
-        && xs.len() == STENCIL_LANES
-        && std::any::TypeId::of::<T>() == std::any::TypeId::of::<f32>()
-        && std::mem::size_of::<Vector<T, D>>() == D * std::mem::size_of::<T>()
-        && std::is_x86_feature_detected!("avx512f")
-    {
-        // SAFETY: the CPU has AVX-512F (just detected). `T` is `f32` and `D` is 3,
-        // and a `Vector<f32, 3>` is its three components (nalgebra's `Matrix` is
-        // `repr(C)` over a `repr(transparent)` array, the size checked above), so
-        // `xs` is 48 consecutive `f32` and the result has the type asked for.
-        unsafe {
-            let flat = &*(xs.as_ptr() as *const [f32; 3 * STENCIL_LANES]);
-            let coords = transpose_16x3_f32_avx512(flat);
-            return *(&coords as *const [[f32; STENCIL_LANES]; 3]
-                as *const [[T; STENCIL_LANES]; D]);
-        }
-    }
-    let last = xs.len() - 1;
-    std::array::from_fn(|a| std::array::from_fn(|l| xs[l.min(last)][a]))
-}
-
-/// `out[a][l] = flat[3 l + a]` for 16 positions of 3 `f32` components: three
-/// vector loads, and per component two permutes (the first picks its elements
-/// among the first 32 values, the second the rest from the last 16).
-#[cfg(target_arch = "x86_64")]
-#[inline]
-#[target_feature(enable = "avx512f")]
-unsafe fn transpose_16x3_f32_avx512(flat: &[f32; 48]) -> [[f32; 16]; 3] {
-    use std::arch::x86_64::*;
-    let mut out = [[0f32; 16]; 3];
-    // SAFETY: unaligned loads of 16 `f32` at offsets 0, 16 and 32 of 48, and
-    // unaligned stores of 16 into each output row.
-    unsafe {
-        let low = _mm512_loadu_ps(flat.as_ptr());
-        let mid = _mm512_loadu_ps(flat.as_ptr().add(16));
-        let high = _mm512_loadu_ps(flat.as_ptr().add(32));
-        for (a, row) in out.iter_mut().enumerate() {
-            // Element `3 l + a` lies in `low`/`mid` (index `3 l + a` of their 32)
-            // when below 32, else in `high` (index `3 l + a − 32`, selected as 16+).
-            let mut first = [0i32; 16];
-            let mut second = [0i32; 16];
-            for l in 0..16 {
-                let e = (3 * l + a) as i32;
-                first[l] = if e < 32 { e } else { 0 };
-                second[l] = if e < 32 { l as i32 } else { 16 + e - 32 };
-            }
-            let first = _mm512_loadu_si512(first.as_ptr() as *const _);
-            let second = _mm512_loadu_si512(second.as_ptr() as *const _);
-            let two = _mm512_permutex2var_ps(low, first, mid);
-            _mm512_storeu_ps(row.as_mut_ptr(), _mm512_permutex2var_ps(two, second, high));
-        }
-    }
-    out
+    const { assert!(STENCIL_LANES == RECORD_LANES) };
+    to_lanes(xs, &xs[xs.len() - 1])
 }
 
 #[cfg(test)]

@@ -10,11 +10,13 @@
 //! the branch folds away) to nalgebra's 2×2 and 3×3 types.
 
 mod erased_loops;
+mod lanes;
 mod polar;
 mod small;
 mod subnormals;
 
 pub use erased_loops::ErasedLoops;
+pub use lanes::{from_lanes, to_lanes, RecordLanes, RECORD_LANES};
 pub use nalgebra;
 pub use polar::{polar_rotation, polar_rotations};
 pub use small::*;

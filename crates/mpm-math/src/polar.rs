@@ -16,7 +16,9 @@
 //! in the same order per lane: the same bits as [`polar_rotation`], 2–3× faster
 //! (criterion bench `polar`: f32 3.2×, f64 2.1× on this machine).
 
-use crate::{cofactor, determinant, svd_rotation_variant, Matrix, Real};
+use crate::{
+    cofactor, determinant, from_lanes, svd_rotation_variant, to_lanes, Matrix, Real, RecordLanes,
+};
 use std::cmp::Ordering::Greater;
 
 /// Newton iterations before falling back to the SVD (Higham's scaled iteration
@@ -168,25 +170,20 @@ fn polar_rotations_avx2<T: Real, const D: usize>(fs: &[Matrix<T, D>], out: &mut 
 fn polar_rotations_lanes<T: Real, const D: usize>(fs: &[Matrix<T, D>], out: &mut [Matrix<T, D>]) {
     for (fs, out) in fs.chunks(LANES).zip(out.chunks_mut(LANES)) {
         // Unused lanes hold the identity (converges at once; results dropped).
-        let mut x = [[[T::zero(); LANES]; 3]; 3];
-        for r in 0..3 {
-            x[r][r] = [T::one(); LANES];
-        }
-        for (l, f) in fs.iter().enumerate() {
-            for r in 0..3 {
-                for c in 0..3 {
-                    x[r][c][l] = f[(r, c)];
-                }
-            }
-        }
+        let columns: RecordLanes<T, 9> = to_lanes(fs, &Matrix::<T, D>::identity());
+        let mut x: LaneMatrix<T> =
+            std::array::from_fn(|r| std::array::from_fn(|c| columns[3 * c + r]));
         let converged = newton_polar_lanes(&mut x);
-        for (l, (f, r)) in fs.iter().zip(out.iter_mut()).enumerate() {
-            *r = if converged[l] {
-                Matrix::<T, D>::from_fn(|i, j| x[i][j][l])
-            } else {
-                let (u, _, v) = svd_rotation_variant(f);
-                u * v.transpose()
-            };
+        let columns: RecordLanes<T, 9> = std::array::from_fn(|e| x[e % 3][e / 3]);
+        from_lanes(&columns, out);
+        for ((f, r), _) in fs
+            .iter()
+            .zip(out.iter_mut())
+            .zip(converged)
+            .filter(|(_, c)| !c)
+        {
+            let (u, _, v) = svd_rotation_variant(f);
+            *r = u * v.transpose();
         }
     }
 }
