@@ -20,7 +20,7 @@
 
 use crate::explicit_step::{moment_matrix, ExplicitStepper};
 use crate::scheme::{Gathered, Needs};
-use crate::separable::{stencil_rows, AxisFactorLanes, Lanes, MAX_ROWS};
+use crate::separable::{stencil_rows, AxisFactorLanes, Lanes};
 use mpm_grid::{BlockSparseGrid, GridLayout, BLOCK};
 use mpm_kernels::{Kernel, Stencil, StencilLanes, MAX_NODES_PER_AXIS, STENCIL_LANES};
 use mpm_math::{Real, Vector};
@@ -304,12 +304,14 @@ fn sums_lanes<T: Real, const D: usize, K: Kernel, G: GridLayout, const AVX512: b
         }
         let f = AxisFactorLanes::new::<K>(stencils, k, h);
         let (w, g, r) = (&f.w, &f.g, &f.r);
-        // `P₀` and the row sums `R`, row by row; FLIP's `Σ w (vᵢ − vᵢ_old)` with them.
-        let mut first_axis = [[[zero; LANES]; D]; MAX_NODES_PER_AXIS];
-        let mut row_sums = [[[zero; LANES]; D]; MAX_ROWS];
-        for (row, rs) in row_sums.iter_mut().enumerate().take(rows) {
+        // `P₀` and the row sums `R`, row by row, each row's `R` then added to the
+        // `Pₐ[jₐ] = Σ_rows Xₐ R` for `a ≥ 1` (in row order, as a second pass over
+        // the rows would); FLIP's `Σ w (vᵢ − vᵢ_old)` with them.
+        let mut p = [[[[zero; LANES]; D]; MAX_NODES_PER_AXIS]; D];
+        for row in 0..rows {
             let j = Stencil::<T, D>::local_of::<K>(row * n);
-            let (_, w_row) = f.row(&j);
+            let (x, w_row) = f.row(&j);
+            let mut rs = [[zero; LANES]; D];
             let row_offset: usize = (1..D).map(|a| j[a] * strides[a]).sum();
             // The row's node velocities, from the tile.
             let row_v = load_row::<T, D, AVX512>(tile, &first, row_offset as isize, n);
@@ -327,18 +329,11 @@ fn sums_lanes<T: Real, const D: usize, K: Kernel, G: GridLayout, const AVX512: b
                         }
                     }
                 }
-                add_scaled(&mut first_axis[j0], &v, &w_row);
-                add_scaled(rs, &v, &w[0][j0]);
+                add_scaled(&mut p[0][j0], &v, &w_row);
+                add_scaled(&mut rs, &v, &w[0][j0]);
             }
-        }
-        // `Pₐ[jₐ] = Σ_rows Xₐ R` for `a ≥ 1`.
-        let mut p = [[[[zero; LANES]; D]; MAX_NODES_PER_AXIS]; D];
-        p[0] = first_axis;
-        for (row, rs) in row_sums.iter().enumerate().take(rows) {
-            let j = Stencil::<T, D>::local_of::<K>(row * n);
-            let (x, _) = f.row(&j);
             for a in 1..D {
-                add_scaled(&mut p[a][j[a]], rs, &x[a]);
+                add_scaled(&mut p[a][j[a]], &rs, &x[a]);
             }
         }
         // `Σ w vᵢ`, `B` and `Σ vᵢ ∇wᵀ` of this grid, each added to
