@@ -18,7 +18,7 @@ mod subnormals;
 pub use erased_loops::ErasedLoops;
 pub use lanes::{from_lanes, to_lanes, RecordLanes, RECORD_LANES};
 pub use nalgebra;
-pub use polar::{polar_rotation, polar_rotations};
+pub use polar::{polar_rotation, polar_rotation_lanes, polar_rotations};
 pub use small::*;
 pub use subnormals::flush_subnormals;
 

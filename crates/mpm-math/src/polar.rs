@@ -18,6 +18,7 @@
 
 use crate::{
     cofactor, determinant, from_lanes, svd_rotation_variant, to_lanes, Matrix, Real, RecordLanes,
+    RECORD_LANES,
 };
 use std::cmp::Ordering::Greater;
 
@@ -170,22 +171,45 @@ fn polar_rotations_avx2<T: Real, const D: usize>(fs: &[Matrix<T, D>], out: &mut 
 fn polar_rotations_lanes<T: Real, const D: usize>(fs: &[Matrix<T, D>], out: &mut [Matrix<T, D>]) {
     for (fs, out) in fs.chunks(LANES).zip(out.chunks_mut(LANES)) {
         // Unused lanes hold the identity (converges at once; results dropped).
-        let columns: RecordLanes<T, 9> = to_lanes(fs, &Matrix::<T, D>::identity());
-        let mut x: LaneMatrix<T> =
-            std::array::from_fn(|r| std::array::from_fn(|c| columns[3 * c + r]));
-        let converged = newton_polar_lanes(&mut x);
-        let columns: RecordLanes<T, 9> = std::array::from_fn(|e| x[e % 3][e / 3]);
-        from_lanes(&columns, out);
-        for ((f, r), _) in fs
-            .iter()
-            .zip(out.iter_mut())
-            .zip(converged)
-            .filter(|(_, c)| !c)
-        {
-            let (u, _, v) = svd_rotation_variant(f);
-            *r = u * v.transpose();
+        let f: RecordLanes<T, 9> = to_lanes(fs, &Matrix::<T, D>::identity());
+        from_lanes(&polar_rotation_lanes(&f, fs), out);
+    }
+}
+
+/// The polar rotations of a run of at most [`RECORD_LANES`] 3×3 matrices `fs`, given
+/// lane-major as `f` ([`to_lanes`]; lanes past the run hold the identity), lane-major
+/// too: lane `l` is `polar_rotation(&fs[l])` bit for bit. For batch code that goes on
+/// in lanes (compile it for the widest vectors the CPU has, as
+/// [`polar_rotations`] does).
+///
+/// # Panics
+/// If `fs` holds more than [`RECORD_LANES`] matrices or `D ≠ 3`.
+#[inline(always)]
+pub fn polar_rotation_lanes<T: Real, const D: usize>(
+    f: &RecordLanes<T, 9>,
+    fs: &[Matrix<T, D>],
+) -> RecordLanes<T, 9> {
+    assert!(
+        D == 3 && fs.len() <= LANES,
+        "polar_rotation_lanes: at most {LANES} 3×3 matrices"
+    );
+    const { assert!(LANES == RECORD_LANES) };
+    let mut x: LaneMatrix<T> = std::array::from_fn(|r| std::array::from_fn(|c| f[3 * c + r]));
+    let converged = newton_polar_lanes(&mut x);
+    let mut rotation: RecordLanes<T, 9> = std::array::from_fn(|e| x[e % 3][e / 3]);
+    for (l, (f, _)) in fs
+        .iter()
+        .zip(converged)
+        .enumerate()
+        .filter(|(_, (_, c))| !c)
+    {
+        let (u, _, v) = svd_rotation_variant(f);
+        let r = u * v.transpose();
+        for (e, lane) in rotation.iter_mut().enumerate() {
+            lane[l] = r.as_slice()[e];
         }
     }
+    rotation
 }
 
 /// Frobenius norm per lane, summed as nalgebra's `norm` does (each column's squares
