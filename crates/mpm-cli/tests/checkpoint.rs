@@ -297,8 +297,12 @@ fn sigkill_at_random_moments_leaves_readable_outputs_and_resumes_identically() {
     .unwrap()[0]
         .len();
 
-    // Kill moments spread over the run by a fixed pseudo-random sequence (an LCG), so
-    // kills land in frame writes, stats writes, checkpoint writes and steps alike.
+    // Kill moments from a fixed pseudo-random sequence (an LCG). Even attempts kill at
+    // a fraction of the straight run's duration, so kills land in frame writes, stats
+    // writes, checkpoint writes and steps alike, or before the first frame or after
+    // the last. Odd attempts wait until a chosen frame file appears and kill a moment
+    // later: those land mid-run whatever this machine's speed (the straight run's
+    // duration, measured cold, is no reliable clock for the killed runs).
     let mut seed: u64 = 0x9e37_79b9_7f4a_7c15;
     let mut fraction = || {
         seed = seed
@@ -306,7 +310,12 @@ fn sigkill_at_random_moments_leaves_readable_outputs_and_resumes_identically() {
             .wrapping_add(1_442_695_040_888_963_407);
         (seed >> 11) as f64 / (1u64 << 53) as f64
     };
+    let frame_count = frame_files(&straight)
+        .iter()
+        .filter(|n| n.ends_with(".ply"))
+        .count();
     let mut killed_with_frames = 0;
+    let mut frame_triggered_mid_run = 0;
     for attempt in 0..6 {
         let out = dir.path().join(format!("killed{attempt}"));
         let mut child = Command::new(env!("CARGO_BIN_EXE_mpm"))
@@ -322,21 +331,44 @@ fn sigkill_at_random_moments_leaves_readable_outputs_and_resumes_identically() {
             .stderr(std::process::Stdio::null())
             .spawn()
             .unwrap();
-        std::thread::sleep(duration.mul_f64(0.1 + 0.8 * fraction()));
+        let frame_triggered = attempt % 2 == 1;
+        if frame_triggered {
+            // A frame from the third up to three quarters of the run: an earlier frame's
+            // checkpoint exists and many frames remain, so the kill is mid-run.
+            let target = 2 + (fraction() * (frame_count * 3 / 4 - 2) as f64) as usize;
+            let path = out.join("frames").join(format!("frame_{target:05}.ply"));
+            while !path.exists() && child.try_wait().unwrap().is_none() {
+                std::thread::sleep(std::time::Duration::from_micros(200));
+            }
+            std::thread::sleep(std::time::Duration::from_micros(
+                (3000.0 * fraction()) as u64,
+            ));
+        } else {
+            std::thread::sleep(duration.mul_f64(0.1 + 0.8 * fraction()));
+        }
         let _ = child.kill(); // SIGKILL on Unix
         let status = child.wait().unwrap();
         let frames = check_killed_outputs(&out, particles);
         if status.success() {
+            assert!(
+                !frame_triggered,
+                "run finished before a frame-triggered kill"
+            );
             continue; // finished before the kill: nothing more to check
         }
         if out.join("checkpoint.bin").exists() {
             killed_with_frames += 1;
+            frame_triggered_mid_run += usize::from(frame_triggered);
             ok(&mpm(&["resume", out.to_str().unwrap()]));
             assert_same_outputs(&straight, &out);
         } else {
             assert!(frames <= 1, "frames written but no checkpoint");
         }
     }
+    assert_eq!(
+        frame_triggered_mid_run, 3,
+        "a frame-triggered kill found no checkpoint (run took {duration:?})"
+    );
     assert!(
         killed_with_frames >= 3,
         "only {killed_with_frames} kills landed mid-run (run took {duration:?})"
