@@ -394,7 +394,8 @@ fn bench_writes_peer_records() {
         }
         assert_eq!(r["particles"], 4096);
         assert_eq!(r["sane"], true);
-        // The sort's arrays: home cells (12 B) and one spare per element type (u32 4,
+        // The sort's arrays: the grid's binning arrays (chunk keys, permutation and
+        // sorted home blocks, u32 each: 12 B) and one spare per element type (u32 4,
         // vector 12, scalar 4, u16 2, matrix 36), exactly: the scene's arrays are
         // shrunk to the particle count, and the spares swap with them.
         let sort = r["sort_bytes_per_particle"].as_u64().expect("sort bytes");

@@ -386,6 +386,8 @@ pub struct BlockSparseGrid<T: Real, const D: usize> {
     scratch_impulse: Vec<Vector<T, D>>,
     scratch_position: Vec<Vector<T, D>>,
     keys: Vec<u32>,
+    /// The last binning's permutation (new position → old index).
+    order: Vec<u32>,
     counts: Vec<usize>,
     sorted_home: Vec<u32>,
 }
@@ -456,6 +458,13 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
     pub fn home_ranges(&self) -> impl Iterator<Item = std::ops::Range<usize>> + '_ {
         self.home_ranges.iter().map(|&(s, e)| s..e)
     }
+    /// Bytes held by the binning's per-particle arrays (capacity): each particle's
+    /// index into its chunk's blocks, the permutation and the sorted home blocks.
+    pub fn binning_bytes(&self) -> usize {
+        (self.keys.capacity() + self.order.capacity() + self.sorted_home.capacity())
+            * std::mem::size_of::<u32>()
+    }
+
     /// Bytes held by the grid's arrays (capacity), for memory reports.
     pub fn heap_bytes(&self) -> usize {
         use std::mem::size_of;
@@ -484,13 +493,33 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
         self.bin_with_halo(home_cell, &[])
     }
 
+    /// [`Self::bin`] with particle `p`'s home cell given by `home_cell(p)` for `p` in
+    /// `0..n` (computed where it is needed, so no array of cells is written and read
+    /// back), into a permutation held by the grid (no allocation while `n` stays).
+    pub fn bin_by<C>(&mut self, n: usize, home_cell: C) -> &[u32]
+    where
+        C: Fn(usize) -> [i32; D] + Sync,
+    {
+        self.bin_by_with_halo(n, home_cell, &[]);
+        &self.order
+    }
+
     /// [`Self::bin`] plus `halo` home blocks that hold no particle here: another
     /// rank's particles scatter into them, and [`Self::set_home_buffer`] receives
     /// their buffers before [`Self::reduce_scatter`] ([`Self::set_home_buffer`]) (domain decomposition, see
     /// [`crate::partition`]). Blocks of `halo` that also hold particles here are
     /// ordinary home blocks.
     pub fn bin_with_halo(&mut self, home_cell: &[[i32; D]], halo: &[[i32; D]]) -> Vec<u32> {
-        let n = home_cell.len();
+        self.bin_by_with_halo(home_cell.len(), |p| home_cell[p], halo);
+        std::mem::take(&mut self.order)
+    }
+
+    /// [`Self::bin_with_halo`] with the home cells from `home_cell` ([`Self::bin_by`]),
+    /// the permutation into `self.order`.
+    fn bin_by_with_halo<C>(&mut self, n: usize, home_cell: C, halo: &[[i32; D]])
+    where
+        C: Fn(usize) -> [i32; D] + Sync,
+    {
         // 1. In parallel, per fixed-size chunk of particles: the chunk's blocks in
         // first-seen order, how many of its particles each holds, and each particle's
         // index into that list (in `keys`). Particles arrive sorted by last step's
@@ -498,16 +527,17 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
         // when the block changes.
         self.keys.clear();
         self.keys.resize(n, 0);
-        let chunks: Vec<(Vec<[i32; D]>, Vec<usize>)> = home_cell
-            .par_chunks(BIN_CHUNK)
-            .zip(self.keys.par_chunks_mut(BIN_CHUNK))
-            .map(|(cells, keys)| {
+        let chunks: Vec<(Vec<[i32; D]>, Vec<usize>)> = self
+            .keys
+            .par_chunks_mut(BIN_CHUNK)
+            .enumerate()
+            .map(|(chunk, keys)| {
                 let mut ids: HashMap<[i32; D], u32> = HashMap::default();
                 let mut found: Vec<[i32; D]> = Vec::new();
                 let mut count: Vec<usize> = Vec::new();
                 let mut last: Option<([i32; D], u32)> = None;
-                for (c, k) in cells.iter().zip(keys.iter_mut()) {
-                    let b = c.map(|v| v.div_euclid(BLOCK));
+                for (i, k) in keys.iter_mut().enumerate() {
+                    let b = home_cell(chunk * BIN_CHUNK + i).map(|v| v.div_euclid(BLOCK));
                     let id = match last {
                         Some((lb, lid)) if lb == b => lid,
                         _ => {
@@ -574,11 +604,15 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
             .map(|b| (self.counts[b], self.counts[b + 1]))
             .collect();
         self.sorted_home.clear();
+        self.sorted_home.reserve_exact(n);
         for (b, &(s, e)) in self.home_ranges.iter().enumerate() {
             self.sorted_home
                 .extend(std::iter::repeat_n(b as u32, e - s));
         }
-        let mut order = vec![0u32; n];
+        // Every entry is overwritten below (the segments tile it): only a new
+        // particle count writes here.
+        let mut order = std::mem::take(&mut self.order);
+        order.resize(n, 0);
         let mut segments: Vec<Vec<&mut [u32]>> = chunks
             .iter()
             .map(|(found, _)| found.iter().map(|_| Default::default()).collect())
@@ -606,7 +640,7 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
         if !same_blocks {
             self.activate_home_neighbourhoods(&home_index);
         }
-        order
+        self.order = order;
     }
 
     /// The grid blocks (every home block and its upper neighbours), their index, each
@@ -1212,6 +1246,36 @@ mod tests {
             assert!(tables(&g) == tables(&fresh));
             assert_eq!(g.home_of_sorted(), fresh.home_of_sorted());
         }
+    }
+
+    /// `bin_by` (cells from a function, the permutation held by the grid) gives what
+    /// `bin` gives for the same cells, over a sequence of sets whose particle count
+    /// shrinks and grows back, and writes into the same buffer while the count does
+    /// not grow (no stale entry survives a shorter binning).
+    #[test]
+    fn binning_by_a_function_matches_binning_an_array() {
+        let set = |n: usize, k: i32| -> Vec<[i32; 3]> {
+            (0..n as i32)
+                .map(|i| [(i * k) % 23 - 7, (i / 11 + k) % 13, -(i / 97)])
+                .collect()
+        };
+        let mut g = BlockSparseGrid::<f32, 3>::new(2);
+        let mut held = None;
+        for (n, k) in [(40_000, 1), (40_000, 5), (17_001, 3), (40_000, 7)] {
+            let cells = set(n, k);
+            let mut fresh = BlockSparseGrid::<f32, 3>::new(2);
+            let expected = fresh.bin(&cells);
+            let order = g.bin_by(n, |p| cells[p]);
+            assert_eq!(order, &expected[..], "{n} particles, k = {k}");
+            let at = order.as_ptr();
+            assert_eq!(g.home_of_sorted(), fresh.home_of_sorted());
+            assert_eq!(g.home_blocks(), fresh.home_blocks());
+            if n <= 40_000 && k != 1 {
+                assert_eq!(Some(at), held, "the permutation's buffer was reallocated");
+            }
+            held = Some(at);
+        }
+        assert_eq!(g.binning_bytes(), 3 * 40_000 * 4);
     }
 
     #[test]

@@ -327,10 +327,13 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
         }
     }
 
-    /// Bytes of the sort's per-particle work arrays (home cells and the spare
-    /// arrays of [`Particles::reorder_with`]), held between steps.
+    /// Bytes of the sort's per-particle work arrays (the grid's binning arrays, the
+    /// spare arrays of [`Particles::reorder_with`] and, on a rank of a distributed
+    /// run, the home cells), held between steps.
     pub fn sort_bytes(&self) -> usize {
-        self.cells.capacity() * std::mem::size_of::<[i32; D]>() + self.reorder_scratch.bytes()
+        self.cells.capacity() * std::mem::size_of::<[i32; D]>()
+            + self.grid.binning_bytes()
+            + self.reorder_scratch.bytes()
     }
 
     /// True when APIC/MLS must use the gradient form (two nodes per axis on one grid:
@@ -376,12 +379,19 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
 
     /// Sorts particles by the grid block of their home cell ([`Self::home_cells`]).
     pub fn bin(&mut self, particles: &mut Particles<T, D>, h: T) {
-        self.home_cells(particles, h);
-        let order = self.grid.bin(&self.cells);
-        particles.reorder_with(&order, &mut self.reorder_scratch);
+        let inv_h = T::one() / h;
+        let off = T::lit(Self::home_offset());
+        let x = &particles.x;
+        // The home cell as `home_cells` computes it, inside the binning's pass over
+        // the particles (no array of cells written and read back).
+        let order = self
+            .grid
+            .bin_by(x.len(), |p| Self::home_cell(&x[p], inv_h, off));
+        particles.reorder_with(order, &mut self.reorder_scratch);
     }
 
-    /// Fills `self.cells` with each particle's home cell: the first node of its
+    /// Fills `self.cells` with each particle's home cell (for the distributed
+    /// step's partition): the first node of its
     /// stencil on the lattice at [`Self::home_offset`]. On one grid that is grid 0's
     /// first node. On the dual layout (grids at `−¼` and `−¾`) it is the lattice
     /// between them: per axis, the first nodes on both grids are the home cell or the
@@ -402,11 +412,16 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
             .zip(self.cells.par_chunks_mut(PARTICLE_CHUNK))
             .for_each_erased(&|(xs, cells)| {
                 for (x, c) in xs.iter().zip(cells) {
-                    for a in 0..D {
-                        c[a] = K::base_node(x[a] * inv_h - off);
-                    }
+                    *c = Self::home_cell(x, inv_h, off);
                 }
             });
+    }
+
+    /// The home cell of a particle at `x` ([`Self::home_cells`]); `off` is
+    /// [`Self::home_offset`].
+    #[inline(always)]
+    fn home_cell(x: &Vector<T, D>, inv_h: T, off: T) -> [i32; D] {
+        std::array::from_fn(|a| K::base_node(x[a] * inv_h - off))
     }
 
     /// P2G: `m_i = Σ w m_p`, `m_i v_i = Σ w m_p (v_p + C_p r)` and the stress impulse
