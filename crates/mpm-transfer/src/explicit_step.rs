@@ -266,7 +266,7 @@ impl<T: Real, const D: usize> StencilRuns<T, D> {
 /// `c h²` when `D_p = c h² I` for every particle: one grid of a kernel with a
 /// [`Kernel::CONSTANT_SECOND_MOMENT`] `c`.
 #[inline(always)]
-fn constant_moment<T: Real, K: Kernel, L: GridLayout>(h: T) -> Option<T> {
+pub(crate) fn constant_moment<T: Real, K: Kernel, L: GridLayout>(h: T) -> Option<T> {
     match (L::GRIDS, K::CONSTANT_SECOND_MOMENT) {
         (1, Some(c)) => Some(T::lit(c) * h * h),
         _ => None,
@@ -311,7 +311,7 @@ pub fn moment_inverse<T: Real, const D: usize, K: Kernel, L: GridLayout>(
 
 /// `D_p⁻¹ = I / m` for a constant moment `D_p = m I` ([`constant_moment`]).
 #[inline(always)]
-fn constant_moment_inverse<T: Real, const D: usize>(m: T) -> Matrix<T, D> {
+pub(crate) fn constant_moment_inverse<T: Real, const D: usize>(m: T) -> Matrix<T, D> {
     Matrix::<T, D>::identity() * (T::one() / m)
 }
 
@@ -668,7 +668,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
         let viscous_fit = particles.needs.velocity_gradient && !gradient_form;
         if viscous_fit {
             needs.affine_moment = true;
-            needs.moment_matrix = true;
+            needs.moment_inverse = true;
         }
         let grid = &self.grid;
         let homes = grid.home_of_sorted();
@@ -706,7 +706,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
             }
             let model = &materials[material[p] as usize];
             let viscous_gradient = if viscous_fit {
-                try_inverse(&g.moment_matrix).map(|d_inv| g.affine_moment * d_inv)
+                g.moment_inverse.map(|d_inv| g.affine_moment * d_inv)
             } else {
                 None
             };

@@ -18,7 +18,8 @@
 //! `tests/optimised_matches_reference.rs` checks the results against the
 //! node-by-node reference gather.
 
-use crate::explicit_step::{moment_matrix, ExplicitStepper};
+use crate::explicit_step::{constant_moment, constant_moment_inverse, ExplicitStepper};
+use crate::moment_lanes::MomentInverseLanes;
 use crate::scheme::{Gathered, Needs};
 use crate::separable::{stencil_rows, AxisFactorLanes, Lanes};
 use mpm_grid::{BlockSparseGrid, GridLayout, BLOCK};
@@ -69,6 +70,7 @@ pub(crate) struct LaneGather<T, K, G> {
 /// first one.
 pub(crate) struct GatherScratch<T, const D: usize> {
     stencils: StencilLanes<T, D>,
+    moments: MomentInverseLanes<T, D>,
     velocity: [[[T; TILE_NODES]; D]; 2],
     velocity_old: [[[T; TILE_NODES]; D]; 2],
     home: Option<u32>,
@@ -80,6 +82,7 @@ impl<T: Real, const D: usize, K: Kernel, G: GridLayout> RunGather<T, D> for Lane
     fn scratch(&self) -> Self::Scratch {
         GatherScratch {
             stencils: StencilLanes::default(),
+            moments: MomentInverseLanes::default(),
             velocity: [[[T::zero(); TILE_NODES]; D]; 2],
             velocity_old: [[[T::zero(); TILE_NODES]; D]; 2],
             home: None,
@@ -123,19 +126,47 @@ impl<T: Real, const D: usize, K: Kernel, G: GridLayout> RunGather<T, D> for Lane
             .fill::<K>(xs, T::one() / h, offsets, G::GRIDS);
         let origin = view.origin();
         let args = (&*scratch, origin, extent, xs.len(), needs, h);
-        #[cfg(target_arch = "x86_64")]
-        {
-            if std::is_x86_feature_detected!("avx512f") {
-                // SAFETY: the CPU has the feature just detected.
-                return unsafe { sums_avx512::<T, D, K, G>(args, out) };
-            }
-            if std::is_x86_feature_detected!("avx2") {
-                // SAFETY: as above.
-                return unsafe { sums_avx2::<T, D, K, G>(args, out) };
+        dispatch_sums::<T, D, K, G>(args, out);
+        if needs.moment_inverse {
+            // `D_p⁻¹` as P2G forms it: the constant `I / (c h²)` where there is one,
+            // else inverted in lanes (the bits of `moment_inverse`), not a general
+            // 3×3 inverse per particle in the update.
+            match constant_moment::<T, K, G>(h) {
+                Some(m) => {
+                    let d_inv = constant_moment_inverse::<T, D>(m);
+                    for o in out.iter_mut().take(xs.len()) {
+                        o.moment_inverse = Some(d_inv);
+                    }
+                }
+                None => {
+                    scratch.moments.fill::<K, G>(&scratch.stencils, h);
+                    for (l, o) in out.iter_mut().enumerate().take(xs.len()) {
+                        o.moment_inverse = scratch.moments.get(l);
+                    }
+                }
             }
         }
-        sums_lanes::<T, D, K, G, false>(args, out);
     }
+}
+
+/// [`sums_lanes`] for the best vector width this CPU has.
+#[inline(always)]
+fn dispatch_sums<T: Real, const D: usize, K: Kernel, G: GridLayout>(
+    args: SumArgs<'_, T, D>,
+    out: &mut [Gathered<T, D>],
+) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::is_x86_feature_detected!("avx512f") {
+            // SAFETY: the CPU has the feature just detected.
+            return unsafe { sums_avx512::<T, D, K, G>(args, out) };
+        }
+        if std::is_x86_feature_detected!("avx2") {
+            // SAFETY: as above.
+            return unsafe { sums_avx2::<T, D, K, G>(args, out) };
+        }
+    }
+    sums_lanes::<T, D, K, G, false>(args, out);
 }
 
 /// What [`sums_lanes`] reads: the filled scratch, the tile's origin and extent, the
@@ -387,9 +418,6 @@ fn sums_lanes<T: Real, const D: usize, K: Kernel, G: GridLayout, const AVX512: b
                 o.affine_moment[(c, a)] = affine_moment[c][a][l] * gw;
                 o.velocity_gradient[(c, a)] = velocity_gradient[c][a][l] * gw;
             }
-        }
-        if needs.moment_matrix {
-            o.moment_matrix = moment_matrix::<T, D, K, G>(&stencils.get::<K>(l), h);
         }
     }
 }

@@ -5,7 +5,7 @@
 //! (`methods.md` §3), so the same formulas hold with the ½-averaged sums.
 
 use crate::scheme::{affine_from_stored, Gathered, Needs, ParticleUpdate, TransferScheme};
-use mpm_math::{try_inverse, Matrix, Real, Vector};
+use mpm_math::{Matrix, Real, Vector};
 
 /// Moving-least-squares MPM transfer.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -25,7 +25,7 @@ impl<T: Real, const D: usize> TransferScheme<T, D> for Mls {
         Needs {
             velocity_gradient: gradient_form,
             affine_moment: !gradient_form,
-            moment_matrix: !gradient_form,
+            moment_inverse: !gradient_form,
             ..Needs::default()
         }
     }
@@ -48,7 +48,7 @@ impl<T: Real, const D: usize> TransferScheme<T, D> for Mls {
             g.velocity_gradient
         } else {
             // D is non-singular for every stencil that is not in gradient form.
-            try_inverse(&g.moment_matrix)
+            g.moment_inverse
                 .map(|d_inv| g.affine_moment * d_inv)
                 .unwrap_or_else(Matrix::<T, D>::zeros)
         };

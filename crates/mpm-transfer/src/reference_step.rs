@@ -153,14 +153,9 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
                     if needs.old_velocity {
                         g.velocity_change += (vi - view.velocity_old(k, &node)) * w;
                     }
-                    if needs.affine_moment || needs.moment_matrix {
+                    if needs.affine_moment {
                         let r = s.offset_to_node(&j, h);
-                        if needs.affine_moment {
-                            g.affine_moment += vi * w * r.transpose();
-                        }
-                        if needs.moment_matrix {
-                            g.moment_matrix += r * w * r.transpose();
-                        }
+                        g.affine_moment += vi * w * r.transpose();
                     }
                     if needs.velocity_gradient {
                         g.velocity_gradient += vi * grad.transpose();
@@ -171,7 +166,9 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
             g.velocity_change *= gw;
             g.affine_moment *= gw;
             g.velocity_gradient *= gw;
-            g.moment_matrix *= gw;
+            if needs.moment_inverse {
+                g.moment_inverse = try_inverse(&reference_moment_matrix::<T, D, L>(&st, h));
+            }
             g
         };
         self.update_particles_with(particles, materials, scheme, params, OneByOne(gather))

@@ -17,8 +17,10 @@ pub struct Gathered<T: Real, const D: usize> {
     pub affine_moment: Matrix<T, D>,
     /// `Σ v_i ∇wᵀ`.
     pub velocity_gradient: Matrix<T, D>,
-    /// `D = Σ w r rᵀ` (MLS: forms `C = B D⁻¹` for the F update).
-    pub moment_matrix: Matrix<T, D>,
+    /// `D⁻¹`, the inverse of `D = Σ w r rᵀ` (`None` where singular; MLS: forms
+    /// `C = B D⁻¹` for the F update). From the stencil's closed form, not summed
+    /// over nodes: the `D_p⁻¹` that P2G uses, inverted once per run in lanes.
+    pub moment_inverse: Option<Matrix<T, D>>,
 }
 
 impl<T: Real, const D: usize> Gathered<T, D> {
@@ -30,7 +32,7 @@ impl<T: Real, const D: usize> Gathered<T, D> {
             velocity_change: zero_vector::<T, D>(),
             affine_moment: zero_matrix::<T, D>(),
             velocity_gradient: zero_matrix::<T, D>(),
-            moment_matrix: zero_matrix::<T, D>(),
+            moment_inverse: None,
         }
     }
 }
@@ -42,8 +44,8 @@ pub struct Needs {
     pub velocity_gradient: bool,
     /// `B`.
     pub affine_moment: bool,
-    /// `D`.
-    pub moment_matrix: bool,
+    /// `D⁻¹`.
+    pub moment_inverse: bool,
     /// Pre-update grid velocities.
     pub old_velocity: bool,
 }
