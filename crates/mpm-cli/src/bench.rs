@@ -470,6 +470,8 @@ fn record(
     let cpu_share = timing
         .cpu_s
         .map(|c| c / (timing.walls.iter().sum::<f64>() * threads as f64));
+    // What the machine delivered right after the run (module `machine`).
+    let machine = crate::machine::check(threads);
     let mut rec = json!({
         "impl": "mpm",
         "version": env!("CARGO_PKG_VERSION"),
@@ -491,6 +493,9 @@ fn record(
         "nproc": std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1),
         "rss_bytes": status_bytes("VmRSS:"),
         "peak_rss_bytes": status_bytes("VmHWM:"),
+        "machine_gflops_1t": machine.gflops_single(),
+        "machine_scaling_chain": machine.chain.scaling(machine.threads),
+        "machine_scaling_lanes": machine.lanes.scaling(machine.threads),
     });
     if let (Some(r), Some(e)) = (rec.as_object_mut(), extra.as_object()) {
         for (k, v) in e {
@@ -673,6 +678,19 @@ pub fn describe(rec: &Value) -> String {
         f("mpps_median"),
         f("cpu_share"),
     );
+    if let Some(g) = rec["machine_gflops_1t"].as_f64() {
+        let threads = rec["threads"].as_u64().unwrap_or(1);
+        out += &format!("machine right after: 1 thread {g:.1} Gflop/s");
+        if threads > 1 {
+            let x = |k: &str| rec[k].as_f64().unwrap_or(f64::NAN);
+            out += &format!(
+                "; {threads} threads at once do {:.2}x (dependent chain) and {:.2}x (independent vector arithmetic) of one thread's work",
+                x("machine_scaling_chain"),
+                x("machine_scaling_lanes"),
+            );
+        }
+        out += "\n";
+    }
     let ph = &rec["phases_ms_per_step"];
     let g = |k: &str| ph[k].as_f64().unwrap_or(f64::NAN);
     out += &format!(

@@ -6,6 +6,7 @@
 pub mod bench;
 pub mod checkpoint;
 pub mod extremes;
+pub mod machine;
 pub mod mesh;
 #[cfg(feature = "mpi")]
 pub mod mpi_transport;

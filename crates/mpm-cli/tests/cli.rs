@@ -389,8 +389,17 @@ fn bench_writes_peer_records() {
             "start",
             "end",
             "sane",
+            "machine_gflops_1t",
+            "machine_scaling_chain",
+            "machine_scaling_lanes",
         ] {
             assert!(r.get(key).is_some(), "record lacks {key}: {r}");
+        }
+        // The machine check's scalings are ratios of timings: positive and finite
+        // (their values depend on the machine and the minute).
+        for key in ["machine_scaling_chain", "machine_scaling_lanes"] {
+            let x = r[key].as_f64().expect("scaling");
+            assert!(x > 0.0 && x.is_finite(), "{key} = {x}");
         }
         assert_eq!(r["particles"], 4096);
         assert_eq!(r["sane"], true);
