@@ -49,7 +49,7 @@ impl PeerScene {
     }
 }
 
-/// Which kernel a peer-scene run uses (both with the transfer chosen).
+/// Which kernel a peer-scene run uses (with the transfer of [`PeerRun::mls`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum BenchKernel {
     /// CK-MPM compact kernel on the dual grid (16 nodes per particle).
@@ -109,7 +109,8 @@ pub struct PeerRun {
     pub scene: PeerScene,
     /// Kernel (and its layout).
     pub kernel: BenchKernel,
-    /// APIC (gradient force, like the peers' `grad` form) or MLS.
+    /// MLS (the peers' default form of the quadratic kernel), else APIC with the
+    /// gradient force (their `grad` form, the only one of their compact kernel).
     pub mls: bool,
     /// Size and timing.
     pub size: PeerSize,

@@ -148,13 +148,14 @@ enum Command {
         scenes: Vec<mpm_cli::bench::PeerScene>,
         /// Kernels to run (compact on the dual grid, quadratic on one grid).
         #[arg(long, value_enum, value_delimiter = ',', default_values = ["compact", "quadratic"])]
-        kernels: Vec<mpm_cli::bench::BenchKernel>,
+        kernels: Vec<bench::BenchKernel>,
         /// Peer sizes: S (262,144 particles) and/or L (1,061,208).
         #[arg(long, value_delimiter = ',', default_values = ["S"])]
         sizes: Vec<String>,
-        /// Transfer for the peer scenes: apic (gradient force, the peers' `grad`
-        /// form) or mls.
-        #[arg(long, default_value = "apic")]
+        /// Transfer for the peer scenes: peers (each kernel in the peers' own form:
+        /// compact with APIC and the gradient force, their `grad`; quadratic with
+        /// MLS, their default), apic (both kernels) or mls (both kernels).
+        #[arg(long, default_value = "peers")]
         transfer: String,
         /// Thread counts to run, e.g. `2,1` [default: all cores].
         #[arg(long, value_delimiter = ',')]
@@ -772,12 +773,14 @@ fn bench(a: BenchArgs) -> Result<(), String> {
     if threads.contains(&0) {
         return Err("--threads: thread counts must be at least 1".into());
     }
-    let mls = match a.transfer.as_str() {
-        "apic" => false,
-        "mls" => true,
+    // Whether a kernel runs MLS (else APIC with the gradient force).
+    let mls: fn(bench::BenchKernel) -> bool = match a.transfer.as_str() {
+        "peers" => |k| k == bench::BenchKernel::Quadratic,
+        "apic" => |_| false,
+        "mls" => |_| true,
         other => {
             return Err(format!(
-                "--transfer: \"{other}\" is not a benchmark transfer; use apic or mls"
+                "--transfer: \"{other}\" is not a benchmark transfer; use peers, apic or mls"
             ))
         }
     };
@@ -851,7 +854,7 @@ fn bench(a: BenchArgs) -> Result<(), String> {
                     let run = bench::PeerRun {
                         scene,
                         kernel,
-                        mls,
+                        mls: mls(kernel),
                         size: adjust(*size),
                         threads: t,
                     };

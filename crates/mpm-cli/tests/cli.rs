@@ -411,6 +411,13 @@ fn bench_writes_peer_records() {
         assert_eq!(sort, 70, "sort arrays {sort} B/particle");
         let nodes = if r["kernel"] == "compact" { 16 } else { 27 };
         assert_eq!(r["nodes_per_particle"], nodes);
+        // By default each kernel runs in the peers' form for it.
+        let form = if r["kernel"] == "compact" {
+            "grad"
+        } else {
+            "mls"
+        };
+        assert_eq!(r["form"], form);
         let ph = &r["phases_ms_per_step"];
         let sum: f64 = ["sort", "p2g", "grid_update", "g2p"]
             .iter()
