@@ -296,6 +296,9 @@ pub struct Timing {
     pub cpu_s: Option<f64>,
     /// Load average before and after.
     pub load: (Option<f64>, Option<f64>),
+    /// What the machine delivered right after the segments, on the same thread
+    /// count (module `machine`).
+    pub machine: crate::machine::MachineCheck,
 }
 
 impl Timing {
@@ -318,9 +321,11 @@ impl Timing {
     }
 }
 
-/// Runs `step` for the warm-up, then the timed segments.
+/// Runs `step` for the warm-up, then the timed segments, then the machine check on
+/// `threads` threads.
 pub fn time_segments<E>(
     size: &PeerSize,
+    threads: usize,
     mut step: impl FnMut() -> Result<(), E>,
 ) -> Result<Timing, E> {
     let t0 = Instant::now();
@@ -342,11 +347,13 @@ pub fn time_segments<E>(
         (Some(a), Some(b)) => Some(b - a),
         _ => None,
     };
+    let load_after = load_average();
     Ok(Timing {
         walls,
         warmup_s,
         cpu_s,
-        load: (load_before, load_average()),
+        load: (load_before, load_after),
+        machine: crate::machine::check(threads),
     })
 }
 
@@ -391,7 +398,7 @@ fn peer_stepper<K: Kernel, L: GridLayout>(
     let mut timed_from = PhaseTimes::default();
     let mut warm = size.warmup;
     let timing = pool.install(|| {
-        time_segments(&size, || {
+        time_segments(&size, run.threads, || {
             if warm == 0 {
                 // First timed step: phase times count from here.
                 timed_from = stepper.times;
@@ -471,8 +478,7 @@ fn record(
     let cpu_share = timing
         .cpu_s
         .map(|c| c / (timing.walls.iter().sum::<f64>() * threads as f64));
-    // What the machine delivered right after the run (module `machine`).
-    let machine = crate::machine::check(threads);
+    let machine = &timing.machine;
     let mut rec = json!({
         "impl": "mpm",
         "version": env!("CARGO_PKG_VERSION"),
@@ -590,7 +596,7 @@ fn time_scene<T: Real, const D: usize, K: Kernel, L: GridLayout>(
     let mut steps_done = 0u64;
     let timing = pool
         .install(|| {
-            time_segments(size, || {
+            time_segments(size, threads, || {
                 steps_done += 1;
                 sim.step(f64::INFINITY).map(|_| ())
             })

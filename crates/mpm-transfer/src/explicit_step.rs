@@ -242,9 +242,7 @@ impl<T: Real, const D: usize> StencilRuns<T, D> {
             self.lanes
                 .fill::<K>(&xs[i..last], T::one() / h, offsets, L::GRIDS);
             if let Some(m) = self.moments.as_mut() {
-                if constant_moment::<T, K, L>(h).is_none() {
-                    m.fill::<K, L>(&self.lanes, h);
-                }
+                m.fill_unless_constant::<K, L>(&self.lanes, h);
             }
             self.start = i;
         }
@@ -255,10 +253,9 @@ impl<T: Real, const D: usize> StencilRuns<T, D> {
     /// where `D_p = c h² I`, else from its stencils, copied out of the lanes.
     #[inline(always)]
     pub fn moment_inverse<K: Kernel, L: GridLayout>(&self, i: usize, h: T) -> Option<Matrix<T, D>> {
-        match (&self.moments, constant_moment::<T, K, L>(h)) {
-            (Some(m), None) => m.get(i - self.start),
-            (_, Some(c)) => Some(constant_moment_inverse::<T, D>(c)),
-            (None, None) => moment_inverse::<T, D, K, L>(&self.lanes.get::<K>(i - self.start), h),
+        match &self.moments {
+            Some(m) => m.inverse::<K, L>(i - self.start, h),
+            None => moment_inverse::<T, D, K, L>(&self.lanes.get::<K>(i - self.start), h),
         }
     }
 }

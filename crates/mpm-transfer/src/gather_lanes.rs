@@ -18,7 +18,7 @@
 //! `tests/optimised_matches_reference.rs` checks the results against the
 //! node-by-node reference gather.
 
-use crate::explicit_step::{constant_moment, constant_moment_inverse, ExplicitStepper};
+use crate::explicit_step::ExplicitStepper;
 use crate::moment_lanes::MomentInverseLanes;
 use crate::scheme::{Gathered, Needs};
 use crate::separable::{stencil_rows, AxisFactorLanes, Lanes};
@@ -131,19 +131,11 @@ impl<T: Real, const D: usize, K: Kernel, G: GridLayout> RunGather<T, D> for Lane
             // `D_p⁻¹` as P2G forms it: the constant `I / (c h²)` where there is one,
             // else inverted in lanes (the bits of `moment_inverse`), not a general
             // 3×3 inverse per particle in the update.
-            match constant_moment::<T, K, G>(h) {
-                Some(m) => {
-                    let d_inv = constant_moment_inverse::<T, D>(m);
-                    for o in out.iter_mut().take(xs.len()) {
-                        o.moment_inverse = Some(d_inv);
-                    }
-                }
-                None => {
-                    scratch.moments.fill::<K, G>(&scratch.stencils, h);
-                    for (l, o) in out.iter_mut().enumerate().take(xs.len()) {
-                        o.moment_inverse = scratch.moments.get(l);
-                    }
-                }
+            scratch
+                .moments
+                .fill_unless_constant::<K, G>(&scratch.stencils, h);
+            for (l, o) in out.iter_mut().enumerate().take(xs.len()) {
+                o.moment_inverse = scratch.moments.inverse::<K, G>(l, h);
             }
         }
     }

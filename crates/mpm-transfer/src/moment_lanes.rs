@@ -13,6 +13,8 @@ use mpm_grid::GridLayout;
 use mpm_kernels::{Kernel, StencilLanes, STENCIL_LANES};
 use mpm_math::{cofactor, determinant, Matrix, Real};
 
+use crate::explicit_step::{constant_moment, constant_moment_inverse};
+
 const LANES: usize = STENCIL_LANES;
 
 /// `D_p⁻¹` of up to [`STENCIL_LANES`] particles, entry-major: `inverse[r][c][l]`;
@@ -128,6 +130,29 @@ impl<T: Real, const D: usize> MomentInverseLanes<T, D> {
     #[inline(always)]
     pub fn get(&self, l: usize) -> Option<Matrix<T, D>> {
         self.invertible[l].then(|| Matrix::<T, D>::from_fn(|r, c| self.inverse[r][c][l]))
+    }
+
+    /// [`Self::fill`] where `D_p` varies by particle; nothing where it is the constant
+    /// `c h² I` ([`constant_moment`]), which [`Self::inverse`] serves without lanes.
+    #[inline(always)]
+    pub fn fill_unless_constant<K: Kernel, G: GridLayout>(
+        &mut self,
+        stencils: &StencilLanes<T, D>,
+        h: T,
+    ) {
+        if constant_moment::<T, K, G>(h).is_none() {
+            self.fill::<K, G>(stencils, h);
+        }
+    }
+
+    /// Lane `l`'s `D_p⁻¹` as P2G forms it (bit for bit): the constant `I / (c h²)`
+    /// where there is one, else from the lanes of [`Self::fill_unless_constant`].
+    #[inline(always)]
+    pub fn inverse<K: Kernel, G: GridLayout>(&self, l: usize, h: T) -> Option<Matrix<T, D>> {
+        match constant_moment::<T, K, G>(h) {
+            Some(m) => Some(constant_moment_inverse::<T, D>(m)),
+            None => self.get(l),
+        }
     }
 }
 
