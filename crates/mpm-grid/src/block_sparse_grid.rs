@@ -629,11 +629,21 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
             .zip(self.keys.par_chunks(BIN_CHUNK))
             .enumerate()
             .for_each(|(c, (mut segments, keys))| {
+                // A run of one key at a time: consecutive particles mostly share a
+                // block, and a count bumped in memory per particle would chain every
+                // store through the load of the next.
                 let mut filled = vec![0usize; segments.len()];
-                for (i, &k) in keys.iter().enumerate() {
-                    let k = k as usize;
-                    segments[k][filled[k]] = (c * BIN_CHUNK + i) as u32;
-                    filled[k] += 1;
+                let mut i = 0;
+                while i < keys.len() {
+                    let k = keys[i] as usize;
+                    let run = keys[i..].iter().take_while(|&&q| q as usize == k).count();
+                    let first = (c * BIN_CHUNK + i) as u32;
+                    let out = &mut segments[k][filled[k]..filled[k] + run];
+                    for (o, p) in out.iter_mut().zip(first..) {
+                        *o = p;
+                    }
+                    filled[k] += run;
+                    i += run;
                 }
             });
 
