@@ -288,7 +288,12 @@ impl<T: Real> Material<T> {
             }
             _ => {}
         }
-        self.advance_general(s, l, viscous_gradient, dt)
+        // Copies for the call out of line: were the caller's matrices passed there by
+        // reference, they would have to live in memory on the two paths above too,
+        // copied there and read back through loads that straddle those copies' stores
+        // (a store-forwarding stall per particle).
+        let (l, viscous_gradient) = (*l, *viscous_gradient);
+        self.advance_general(s, &l, &viscous_gradient, dt)
     }
 
     /// [`Self::advance`] for every model and state.
