@@ -933,33 +933,42 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
                         if h == NONE {
                             continue;
                         }
+                        // Node l of block G is at 4δ + l in the home block's buffer:
+                        // per axis the block's first `len[a]` nodes lie inside it.
+                        // Rows along axis 0 are contiguous on both sides.
                         let d = delta::<D>(code);
-                        let base = h as usize * per_home + grid * per_grid;
-                        for l in 0..npb {
-                            // Node l of block G is at 4δ + l in the home block's buffer.
-                            let mut idx = 0usize;
-                            let mut stride = 1usize;
-                            let mut rem = l;
-                            let mut inside = true;
-                            for da in d.iter() {
-                                let la = rem % BLOCK as usize + (*da as usize) * BLOCK as usize;
-                                rem /= BLOCK as usize;
-                                if la >= ext {
-                                    inside = false;
-                                    break;
-                                }
-                                idx += la * stride;
-                                stride *= ext;
+                        let b = BLOCK as usize;
+                        let mut len = [b; D];
+                        let mut base = h as usize * per_home + grid * per_grid;
+                        let mut stride = 1usize;
+                        for a in 0..D {
+                            let start = d[a] as usize * b;
+                            len[a] = ext.saturating_sub(start).min(b);
+                            base += start * stride;
+                            stride *= ext;
+                        }
+                        let rows: usize = len[1..].iter().product();
+                        for row in 0..rows {
+                            // The row's block node and buffer index at l₀ = 0.
+                            let (mut rem, mut l, mut idx) = (row, 0usize, base);
+                            let (mut block_stride, mut buffer_stride) = (b, ext);
+                            for &n in &len[1..] {
+                                let la = rem % n;
+                                rem /= n;
+                                l += la * block_stride;
+                                idx += la * buffer_stride;
+                                block_stride *= b;
+                                buffer_stride *= ext;
                             }
-                            if inside {
-                                let rec = &sn[base + idx];
-                                m[l] += rec[3];
-                                p[l] += record_momentum::<T, D>(rec);
+                            for i in 0..len[0] {
+                                let rec = &sn[idx + i];
+                                m[l + i] += rec[3];
+                                p[l + i] += record_momentum::<T, D>(rec);
                                 if separate {
-                                    imp[l] += si[base + idx];
+                                    imp[l + i] += si[idx + i];
                                 }
                                 if positions {
-                                    pos[l] += sx[base + idx];
+                                    pos[l + i] += sx[idx + i];
                                 }
                             }
                         }
