@@ -80,8 +80,11 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> Default for ExplicitStep
     }
 }
 
-/// Particles per parallel work item in G2P.
-pub const PARTICLE_CHUNK: usize = 512;
+/// Particles per parallel work item in G2P: a chunk starts by copying its first home
+/// block's node velocities into a tile, so it spans several home blocks (about 440
+/// particles each in the peers' scenes; at 512 a chunk refilled a tile for nearly
+/// every block), and a step still has 128 chunks at 262,144 particles to balance.
+pub const PARTICLE_CHUNK: usize = 2048;
 
 /// Particles per run of [`Material::kirchhoff_stresses`] in P2G: two batches of the
 /// vectorised polar decomposition, small enough to stay in L1 with their `F`.
