@@ -21,7 +21,7 @@
 use crate::explicit_step::ExplicitStepper;
 use crate::moment_lanes::MomentInverseLanes;
 use crate::scheme::{Gathered, Needs};
-use crate::separable::{stencil_rows, AxisFactorLanes, Lanes};
+use crate::separable::{stencil_rows, with_nodes_per_axis, AxisFactorLanes, Lanes};
 use mpm_grid::{BlockSparseGrid, GridLayout, BLOCK};
 use mpm_kernels::{Kernel, Stencil, StencilLanes, MAX_NODES_PER_AXIS, STENCIL_LANES};
 use mpm_math::{from_lanes, zero_matrix, Matrix, Real, RecordLanes, Vector, RECORD_LANES};
@@ -159,7 +159,7 @@ fn dispatch_sums<T: Real, const D: usize, K: Kernel, G: GridLayout>(
             return unsafe { sums_avx2::<T, D, K, G>(args, out) };
         }
     }
-    sums_lanes::<T, D, K, G, false>(args, out);
+    with_nodes_per_axis!(K, N => sums_lanes::<T, D, K, G, false, N>(args, out));
 }
 
 /// What [`sums_lanes`] reads: the filled scratch, the tile's origin and extent, the
@@ -180,7 +180,7 @@ fn sums_avx512<T: Real, const D: usize, K: Kernel, G: GridLayout>(
     args: SumArgs<'_, T, D>,
     out: &mut [Gathered<T, D>],
 ) {
-    sums_lanes::<T, D, K, G, true>(args, out);
+    with_nodes_per_axis!(K, N => sums_lanes::<T, D, K, G, true, N>(args, out));
 }
 
 /// [`sums_lanes`] compiled for AVX2.
@@ -190,7 +190,7 @@ fn sums_avx2<T: Real, const D: usize, K: Kernel, G: GridLayout>(
     args: SumArgs<'_, T, D>,
     out: &mut [Gathered<T, D>],
 ) {
-    sums_lanes::<T, D, K, G, false>(args, out);
+    with_nodes_per_axis!(K, N => sums_lanes::<T, D, K, G, false, N>(args, out));
 }
 
 /// `a[c][l] += b[c][l] * s[l]` for every component `c` and lane `l`.
@@ -223,19 +223,19 @@ fn load_lanes<T: Real, const D: usize>(
     v
 }
 
-/// The velocities of the `n` nodes of a stencil row, `first[l] + offset + j₀` for
-/// `j₀ < n`, per lane: with `AVX512` (the caller is compiled for it) and `f32` on a
+/// The velocities of the `N` nodes of a stencil row, `first[l] + offset + j₀` for
+/// `j₀ < N`, per lane: with `AVX512` (the caller is compiled for it) and `f32` on a
 /// CPU with AVX-512F, two neighbouring nodes at a time,
 /// one 64-bit gather per eight lanes and component (half the gathered elements of
 /// [`load_lanes`]), split into the two nodes by a permute.
 #[inline(always)]
-fn load_row<T: Real, const D: usize, const AVX512: bool>(
+fn load_row<T: Real, const D: usize, const AVX512: bool, const N: usize>(
     tile: &[[T; TILE_NODES]; D],
     first: &[isize; LANES],
     offset: isize,
-    n: usize,
-) -> [[Lanes<T>; D]; MAX_NODES_PER_AXIS] {
-    let mut v = [[[T::zero(); LANES]; D]; MAX_NODES_PER_AXIS];
+) -> [[Lanes<T>; D]; N] {
+    let n = N;
+    let mut v = [[[T::zero(); LANES]; D]; N];
     let mut j0 = 0;
     #[cfg(target_arch = "x86_64")]
     if AVX512
@@ -300,12 +300,19 @@ unsafe fn load_pair_f32_avx512<const D: usize>(
 /// The portable lane code behind [`LaneGather::gather`]. Lanes past the run hold
 /// copies of its last particle (their sums are never read).
 #[inline(always)]
-fn sums_lanes<T: Real, const D: usize, K: Kernel, G: GridLayout, const AVX512: bool>(
+fn sums_lanes<
+    T: Real,
+    const D: usize,
+    K: Kernel,
+    G: GridLayout,
+    const AVX512: bool,
+    const N: usize,
+>(
     (scratch, origin, extent, len, needs, h): SumArgs<'_, T, D>,
     out: &mut [Gathered<T, D>],
 ) {
     let stencils = &scratch.stencils;
-    let n = K::NODES_PER_AXIS;
+    let n = N;
     let rows = stencil_rows::<K, D>();
     let zero = T::zero();
     let mut strides = [1usize; D];
@@ -326,21 +333,21 @@ fn sums_lanes<T: Real, const D: usize, K: Kernel, G: GridLayout, const AVX512: b
                 first[l] += (base[l] - origin[a]) as isize * strides[a] as isize;
             }
         }
-        let f = AxisFactorLanes::new::<K>(stencils, k, h);
+        let f = AxisFactorLanes::<T, D, N>::new::<K>(stencils, k, h);
         let (w, g, r) = (&f.w, &f.g, &f.r);
         // `P₀` and the row sums `R`, row by row, each row's `R` then added to the
         // `Pₐ[jₐ] = Σ_rows Xₐ R` for `a ≥ 1` (in row order, as a second pass over
         // the rows would); FLIP's `Σ w (vᵢ − vᵢ_old)` with them.
-        let mut p = [[[[zero; LANES]; D]; MAX_NODES_PER_AXIS]; D];
+        let mut p = [[[[zero; LANES]; D]; N]; D];
         for row in 0..rows {
             let j = Stencil::<T, D>::local_of::<K>(row * n);
             let (x, w_row) = f.row(&j);
             let mut rs = [[zero; LANES]; D];
             let row_offset: usize = (1..D).map(|a| j[a] * strides[a]).sum();
             // The row's node velocities, from the tile.
-            let row_v = load_row::<T, D, AVX512>(tile, &first, row_offset as isize, n);
+            let row_v = load_row::<T, D, AVX512, N>(tile, &first, row_offset as isize);
             let row_old = if needs.old_velocity {
-                load_row::<T, D, AVX512>(tile_old, &first, row_offset as isize, n)
+                load_row::<T, D, AVX512, N>(tile_old, &first, row_offset as isize)
             } else {
                 row_v
             };
@@ -471,6 +478,25 @@ fn write_matrices<T: Real, const D: usize>(
 mod tests {
     use super::*;
 
+    /// A row of `N` nodes loaded pairwise and one by one, against [`load_lanes`].
+    fn check_row<const N: usize>(
+        tile: &[[f32; TILE_NODES]; 3],
+        first: &[isize; LANES],
+        offset: isize,
+    ) {
+        let paired = load_row::<f32, 3, true, N>(tile, first, offset);
+        let single = load_row::<f32, 3, false, N>(tile, first, offset);
+        for j in 0..N {
+            let expected = load_lanes(tile, first, offset + j as isize);
+            for c in 0..3 {
+                for l in 0..LANES {
+                    assert_eq!(paired[j][c][l].to_bits(), expected[c][l].to_bits());
+                    assert_eq!(single[j][c][l].to_bits(), expected[c][l].to_bits());
+                }
+            }
+        }
+    }
+
     /// The paired AVX-512 loads give [`load_lanes`]' values bit for bit, for rows
     /// of 2 to 4 nodes anywhere in the tile (where the CPU lacks AVX-512F, both
     /// sides run the portable loads).
@@ -492,18 +518,11 @@ mod tests {
                 // Every node of the row inside the tile (the clamps differ outside).
                 *f = ((seed >> 33) % (TILE_NODES as u64 - 5)) as isize;
             }
-            let n = 2 + round % 3;
             let offset = (round % 3) as isize;
-            let paired = load_row::<f32, 3, true>(&tile, &first, offset, n);
-            let single = load_row::<f32, 3, false>(&tile, &first, offset, n);
-            for j in 0..n {
-                let expected = load_lanes(&tile, &first, offset + j as isize);
-                for c in 0..3 {
-                    for l in 0..LANES {
-                        assert_eq!(paired[j][c][l].to_bits(), expected[c][l].to_bits());
-                        assert_eq!(single[j][c][l].to_bits(), expected[c][l].to_bits());
-                    }
-                }
+            match round % 3 {
+                0 => check_row::<2>(&tile, &first, offset),
+                1 => check_row::<3>(&tile, &first, offset),
+                _ => check_row::<4>(&tile, &first, offset),
             }
         }
     }

@@ -12,7 +12,7 @@
 //! FMA), so the buffer receives the same bits; `tests/optimised_matches_reference.rs`
 //! checks P2G against the node-by-node reference.
 
-use crate::separable::{stencil_rows, AxisFactorLanes, Lanes, MAX_ROWS};
+use crate::separable::{stencil_rows, with_nodes_per_axis, AxisFactorLanes, Lanes, MAX_ROWS};
 use mpm_grid::{GridLayout, LocalBuffer};
 use mpm_kernels::{Kernel, Stencil, StencilLanes, MAX_NODES_PER_AXIS, STENCIL_LANES};
 use mpm_math::{Matrix, Real, Vector};
@@ -116,7 +116,7 @@ impl<T: Real, const D: usize> ScatterLanes<T, D> {
                 return unsafe { self.scatter_avx2::<K, G>(stencils, len, separate, h, buf) };
             }
         }
-        self.scatter_lanes::<K, G>(stencils, len, separate, h, buf);
+        with_nodes_per_axis!(K, N => self.scatter_lanes::<K, G, N>(stencils, len, separate, h, buf));
     }
 
     /// [`Self::scatter_lanes`] compiled for AVX-512 (same bits as any other target).
@@ -130,7 +130,7 @@ impl<T: Real, const D: usize> ScatterLanes<T, D> {
         h: T,
         buf: &mut LocalBuffer<'_, T, D>,
     ) {
-        self.scatter_lanes::<K, G>(stencils, len, separate, h, buf);
+        with_nodes_per_axis!(K, N => self.scatter_lanes::<K, G, N>(stencils, len, separate, h, buf))
     }
 
     /// [`Self::scatter_lanes`] compiled for AVX2.
@@ -144,12 +144,12 @@ impl<T: Real, const D: usize> ScatterLanes<T, D> {
         h: T,
         buf: &mut LocalBuffer<'_, T, D>,
     ) {
-        self.scatter_lanes::<K, G>(stencils, len, separate, h, buf);
+        with_nodes_per_axis!(K, N => self.scatter_lanes::<K, G, N>(stencils, len, separate, h, buf))
     }
 
-    /// The portable lane code behind [`Self::scatter`].
+    /// The portable lane code behind [`Self::scatter`], for `K`'s `N` nodes per axis.
     #[inline(always)]
-    fn scatter_lanes<K: Kernel, G: GridLayout>(
+    fn scatter_lanes<K: Kernel, G: GridLayout, const N: usize>(
         &mut self,
         stencils: &StencilLanes<T, D>,
         len: usize,
@@ -157,14 +157,14 @@ impl<T: Real, const D: usize> ScatterLanes<T, D> {
         h: T,
         buf: &mut LocalBuffer<'_, T, D>,
     ) {
-        let n = K::NODES_PER_AXIS;
+        let n = N;
         let rows = stencil_rows::<K, D>();
         let zero = T::zero();
         let strides = buf.strides();
         for k in 0..G::GRIDS {
-            let f = AxisFactorLanes::new::<K>(stencils, k, h);
-            let momentum = tables::<T, D, K>(&self.momentum, &f);
-            let impulse = separate.then(|| tables::<T, D, K>(&self.impulse, &f));
+            let f = AxisFactorLanes::<T, D, N>::new::<K>(stencils, k, h);
+            let momentum = tables(&self.momentum, &f);
+            let impulse = separate.then(|| tables(&self.impulse, &f));
             for row in 0..rows {
                 let j = Stencil::<T, D>::local_of::<K>(row * n);
                 let (x, w_row) = f.row(&j);
@@ -222,13 +222,13 @@ impl<T: Real, const D: usize> ScatterLanes<T, D> {
 /// Per-axis tables `Aₐ[j][c]` of a term (module docs):
 /// `Cₐ (wₐ[j] rₐ[j]) + Sₐ gₐ[j]`, plus `c₀ w₀[j]` on axis 0 (`Cₐ`, `Sₐ` the columns).
 #[inline(always)]
-fn tables<T: Real, const D: usize, K: Kernel>(
+fn tables<T: Real, const D: usize, const N: usize>(
     term: &Term<T, D>,
-    f: &AxisFactorLanes<T, D>,
-) -> [[[Lanes<T>; D]; MAX_NODES_PER_AXIS]; D] {
-    let mut t = [[[[T::zero(); LANES]; D]; MAX_NODES_PER_AXIS]; D];
+    f: &AxisFactorLanes<T, D, N>,
+) -> [[[Lanes<T>; D]; N]; D] {
+    let mut t = [[[[T::zero(); LANES]; D]; N]; D];
     for a in 0..D {
-        for j in 0..K::NODES_PER_AXIS {
+        for j in 0..N {
             for c in 0..D {
                 for l in 0..LANES {
                     let wa = f.w[a][j][l];
@@ -247,8 +247,8 @@ fn tables<T: Real, const D: usize, K: Kernel>(
 
 /// The row's shared part `U = Σ_{a≥1} Xₐ Aₐ[jₐ]`.
 #[inline(always)]
-fn row_shared<T: Real, const D: usize>(
-    t: &[[[Lanes<T>; D]; MAX_NODES_PER_AXIS]; D],
+fn row_shared<T: Real, const D: usize, const N: usize>(
+    t: &[[[Lanes<T>; D]; N]; D],
     x: &[Lanes<T>; D],
     j: &[usize; D],
 ) -> [Lanes<T>; D] {
