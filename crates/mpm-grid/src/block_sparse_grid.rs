@@ -985,6 +985,19 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
     where
         F: Fn(usize, [i32; D], T, &Vector<T, D>, &Vector<T, D>) -> Vector<T, D> + Sync,
     {
+        self.update_by_block(|_, _| (), |_, k, node, m, p, q| f(k, node, m, p, q));
+    }
+
+    /// [`Self::update`] with a value worked out once per block:
+    /// `prepare(grid, first_node)` for the block whose nodes are
+    /// `first_node + [0, BLOCK)^D`, then `f(&prepared, grid, node, mass, momentum,
+    /// position_moment)` for each of its nodes with mass (for instance the colliders
+    /// that can reach the block, so that the others are not tested node by node).
+    pub fn update_by_block<S, P, F>(&mut self, prepare: P, f: F)
+    where
+        P: Fn(usize, [i32; D]) -> S + Sync,
+        F: Fn(&S, usize, [i32; D], T, &Vector<T, D>, &Vector<T, D>) -> Vector<T, D> + Sync,
+    {
         let keep_old = !self.impulse.is_empty();
         let npb = self.nodes_per_block;
         let n_blocks = self.blocks.len();
@@ -1012,6 +1025,7 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
                     let grid = chunk / n_blocks;
                     let block = blocks[chunk % n_blocks];
                     let first = chunk * npb;
+                    let prepared = prepare(grid, block.map(|b| b * BLOCK));
                     for (l, vl) in v.iter_mut().enumerate() {
                         let m = mass[first + l];
                         if m > T::zero() {
@@ -1022,7 +1036,7 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
                                 momentum[first + l]
                             };
                             let q = position.get(first + l).unwrap_or(&zero);
-                            *vl = f(grid, node, m, &total, q);
+                            *vl = f(&prepared, grid, node, m, &total, q);
                         } else {
                             *vl = zero;
                         }

@@ -605,20 +605,41 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
     }
 
     /// Grid update: `v_i = (m_i v_i + Δt f_i)/m_i + Δt g`, then the colliders at the
-    /// node's position.
+    /// node's position: per block only those that can reach it
+    /// ([`Collider::may_reach`]; the others would leave every velocity there as it
+    /// is), so that walls cost nothing away from the boundary.
     pub fn grid_update(&mut self, params: &StepParams<T, D>) {
         let dt = params.dt;
         let h = params.h;
         let g = params.gravity;
         let t = params.time;
         let colliders = &params.colliders;
-        self.grid.update(|k, node, m, p, _| {
+        let position = |k: usize, node: [i32; D]| {
+            let off = T::lit(L::offset(k));
+            Vector::<T, D>::from_fn(|a, _| (T::lit(node[a] as f64) + off) * h)
+        };
+        // Bit `i`: collider `i` can reach the block (those past the mask's width are
+        // always applied).
+        let reach = |k: usize, first: [i32; D]| -> u64 {
+            let lo = position(k, first);
+            let hi = position(k, first.map(|f| f + BLOCK - 1));
+            let mut mask = 0u64;
+            for (i, c) in colliders.iter().enumerate().take(u64::BITS as usize) {
+                if c.may_reach(&lo, &hi, t) {
+                    mask |= 1 << i;
+                }
+            }
+            mask
+        };
+        let many = colliders.len() > u64::BITS as usize;
+        self.grid.update_by_block(reach, |&mask, k, node, m, p, _| {
             let mut v = p / m + g * dt;
-            if !colliders.is_empty() {
-                let off = T::lit(L::offset(k));
-                let x = Vector::<T, D>::from_fn(|a, _| (T::lit(node[a] as f64) + off) * h);
-                for c in colliders {
-                    v = c.apply(&x, v, t);
+            if mask != 0 || many {
+                let x = position(k, node);
+                for (i, c) in colliders.iter().enumerate() {
+                    if i >= u64::BITS as usize || mask & (1 << i) != 0 {
+                        v = c.apply(&x, v, t);
+                    }
                 }
             }
             v
