@@ -12,15 +12,12 @@
 //! FMA), so the buffer receives the same bits; `tests/optimised_matches_reference.rs`
 //! checks P2G against the node-by-node reference.
 
-use crate::separable::{stencil_rows, with_nodes_per_axis, AxisFactorLanes, Lanes, MAX_ROWS};
+use crate::separable::{stencil_rows, with_nodes_per_axis, AxisFactorLanes, Lanes};
 use mpm_grid::{GridLayout, LocalBuffer};
-use mpm_kernels::{Kernel, Stencil, StencilLanes, MAX_NODES_PER_AXIS, STENCIL_LANES};
+use mpm_kernels::{Kernel, Stencil, StencilLanes, STENCIL_LANES};
 use mpm_math::{Matrix, Real, Vector};
 
 const LANES: usize = STENCIL_LANES;
-
-/// Most nodes of one grid's stencil (4 per axis in 3-D).
-const MAX_NODES: usize = MAX_ROWS * MAX_NODES_PER_AXIS;
 
 /// The affine part `c₀ + C r` and the stress `S` of a node term
 /// `w (c₀ + C r) + S ∇w`, per lane.
@@ -51,15 +48,13 @@ impl<T: Real, const D: usize> Term<T, D> {
     }
 }
 
-/// Work space of one home block's P2G: the particles' terms of a run, and every
-/// node's contribution per lane (`node_mass[q][l]`, `node_momentum[q][c][l]`).
+/// Work space of one home block's P2G: the particles' terms of a run. (Every node's
+/// contribution per lane lives in [`ScatterLanes::scatter`]'s own arrays, sized to
+/// the kernel: here, for the widest kernel, they were 28 KB zeroed per home block.)
 pub(crate) struct ScatterLanes<T, const D: usize> {
     mass: Lanes<T>,
     momentum: Term<T, D>,
     impulse: Term<T, D>,
-    node_mass: [Lanes<T>; MAX_NODES],
-    node_momentum: [[Lanes<T>; D]; MAX_NODES],
-    node_impulse: [[Lanes<T>; D]; MAX_NODES],
 }
 
 impl<T: Real, const D: usize> Default for ScatterLanes<T, D> {
@@ -68,9 +63,6 @@ impl<T: Real, const D: usize> Default for ScatterLanes<T, D> {
             mass: [T::zero(); LANES],
             momentum: Term::zeros(),
             impulse: Term::zeros(),
-            node_mass: [[T::zero(); LANES]; MAX_NODES],
-            node_momentum: [[[T::zero(); LANES]; D]; MAX_NODES],
-            node_impulse: [[[T::zero(); LANES]; D]; MAX_NODES],
         }
     }
 }
@@ -116,7 +108,11 @@ impl<T: Real, const D: usize> ScatterLanes<T, D> {
                 return unsafe { self.scatter_avx2::<K, G>(stencils, len, separate, h, buf) };
             }
         }
-        with_nodes_per_axis!(K, N => self.scatter_lanes::<K, G, N>(stencils, len, separate, h, buf));
+        with_nodes_per_axis!(K, N, R => if separate {
+            self.scatter_lanes::<K, G, N, R, true>(stencils, len, h, buf)
+        } else {
+            self.scatter_lanes::<K, G, N, R, false>(stencils, len, h, buf)
+        });
     }
 
     /// [`Self::scatter_lanes`] compiled for AVX-512 (same bits as any other target).
@@ -130,7 +126,11 @@ impl<T: Real, const D: usize> ScatterLanes<T, D> {
         h: T,
         buf: &mut LocalBuffer<'_, T, D>,
     ) {
-        with_nodes_per_axis!(K, N => self.scatter_lanes::<K, G, N>(stencils, len, separate, h, buf))
+        with_nodes_per_axis!(K, N, R => if separate {
+            self.scatter_lanes::<K, G, N, R, true>(stencils, len, h, buf)
+        } else {
+            self.scatter_lanes::<K, G, N, R, false>(stencils, len, h, buf)
+        })
     }
 
     /// [`Self::scatter_lanes`] compiled for AVX2.
@@ -144,27 +144,43 @@ impl<T: Real, const D: usize> ScatterLanes<T, D> {
         h: T,
         buf: &mut LocalBuffer<'_, T, D>,
     ) {
-        with_nodes_per_axis!(K, N => self.scatter_lanes::<K, G, N>(stencils, len, separate, h, buf))
+        with_nodes_per_axis!(K, N, R => if separate {
+            self.scatter_lanes::<K, G, N, R, true>(stencils, len, h, buf)
+        } else {
+            self.scatter_lanes::<K, G, N, R, false>(stencils, len, h, buf)
+        })
     }
 
-    /// The portable lane code behind [`Self::scatter`], for `K`'s `N` nodes per axis.
+    /// The portable lane code behind [`Self::scatter`], for `K`'s `N` nodes per axis
+    /// (`R ≥` its stencil's rows); `SEPARATE`: the impulse goes apart.
     #[inline(always)]
-    fn scatter_lanes<K: Kernel, G: GridLayout, const N: usize>(
+    fn scatter_lanes<
+        K: Kernel,
+        G: GridLayout,
+        const N: usize,
+        const R: usize,
+        const SEPARATE: bool,
+    >(
         &mut self,
         stencils: &StencilLanes<T, D>,
         len: usize,
-        separate: bool,
         h: T,
         buf: &mut LocalBuffer<'_, T, D>,
     ) {
         let n = N;
         let rows = stencil_rows::<K, D>();
+        debug_assert!(rows <= R, "{rows} rows, room for {R}");
         let zero = T::zero();
         let strides = buf.strides();
+        // Every node's contribution per lane (`node_mass[row][j₀][l]`, …): written in
+        // full before they are read in 3-D, so no zeroing is left in the code.
+        let mut node_mass = [[[zero; LANES]; N]; R];
+        let mut node_momentum = [[[[zero; LANES]; D]; N]; R];
+        let mut node_impulse = [[[[zero; LANES]; D]; N]; R];
         for k in 0..G::GRIDS {
             let f = AxisFactorLanes::<T, D, N>::new::<K>(stencils, k, h);
             let momentum = tables(&self.momentum, &f);
-            let impulse = separate.then(|| tables(&self.impulse, &f));
+            let impulse = SEPARATE.then(|| tables(&self.impulse, &f));
             for row in 0..rows {
                 let j = Stencil::<T, D>::local_of::<K>(row * n);
                 let (x, w_row) = f.row(&j);
@@ -175,43 +191,46 @@ impl<T: Real, const D: usize> ScatterLanes<T, D> {
                 let shared = row_shared(&momentum, &x, &j);
                 let shared_impulse = impulse.as_ref().map(|t| row_shared(t, &x, &j));
                 for j0 in 0..n {
-                    let q = row * n + j0;
                     let w0 = &f.w[0][j0];
                     for l in 0..LANES {
-                        self.node_mass[q][l] = w0[l] * m_row[l];
+                        node_mass[row][j0][l] = w0[l] * m_row[l];
                     }
                     node_term(
-                        &mut self.node_momentum[q],
+                        &mut node_momentum[row][j0],
                         &momentum[0][j0],
                         &w_row,
                         &shared,
                         w0,
                     );
                     if let (Some(t), Some(u)) = (&impulse, &shared_impulse) {
-                        node_term(&mut self.node_impulse[q], &t[0][j0], &w_row, u, w0);
+                        node_term(&mut node_impulse[row][j0], &t[0][j0], &w_row, u, w0);
                     }
                 }
             }
             // Into the buffer, a particle at a time.
-            let mut offsets = [0usize; MAX_NODES];
-            for (q, o) in offsets.iter_mut().enumerate().take(rows * n) {
-                let j = Stencil::<T, D>::local_of::<K>(q);
-                for a in 0..D {
-                    *o += j[a] * strides[a];
+            let mut offsets = [[0usize; N]; R];
+            for (row, o) in offsets.iter_mut().enumerate().take(rows) {
+                for (j0, o) in o.iter_mut().enumerate() {
+                    let j = Stencil::<T, D>::local_of::<K>(row * n + j0);
+                    for a in 0..D {
+                        *o += j[a] * strides[a];
+                    }
                 }
             }
             for l in 0..len {
                 let base: [i32; D] = std::array::from_fn(|a| stencils.lane_weights(k, a).base[l]);
                 let first = buf.index_of(k, &base);
-                for (q, o) in offsets.iter().enumerate().take(rows * n) {
-                    let idx = first + o;
-                    let m = self.node_mass[q][l];
-                    let p = Vector::<T, D>::from_fn(|c, _| self.node_momentum[q][c][l]);
-                    if separate {
-                        let i = Vector::<T, D>::from_fn(|c, _| self.node_impulse[q][c][l]);
-                        buf.add_at(idx, m, &p, &i);
-                    } else {
-                        buf.add_folded_at(idx, m, &p);
+                for row in 0..rows {
+                    for j0 in 0..n {
+                        let idx = first + offsets[row][j0];
+                        let m = node_mass[row][j0][l];
+                        let p = Vector::<T, D>::from_fn(|c, _| node_momentum[row][j0][c][l]);
+                        if SEPARATE {
+                            let i = Vector::<T, D>::from_fn(|c, _| node_impulse[row][j0][c][l]);
+                            buf.add_at(idx, m, &p, &i);
+                        } else {
+                            buf.add_folded_at(idx, m, &p);
+                        }
                     }
                 }
             }

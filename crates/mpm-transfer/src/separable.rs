@@ -87,24 +87,36 @@ pub(crate) type Lanes<T> = [T; STENCIL_LANES];
 
 /// Calls `$body` with the const generic `$n` set to kernel `$k`'s nodes per axis
 /// (the lane code sizes its per-axis tables by it; the last arm is
-/// [`MAX_NODES_PER_AXIS`], the most any kernel has).
+/// [`MAX_NODES_PER_AXIS`], the most any kernel has) and, in the second form, `$rows`
+/// to `$n²`, the rows of a 3-D stencil (at least those of a 2-D one).
 macro_rules! with_nodes_per_axis {
     ($k:ty, $n:ident => $body:expr) => {
+        with_nodes_per_axis!($k, $n, _ROWS => $body)
+    };
+    ($k:ty, $n:ident, $rows:ident => $body:expr) => {
         match <$k as mpm_kernels::Kernel>::NODES_PER_AXIS {
             1 => {
                 const $n: usize = 1;
+                #[allow(dead_code)]
+                const $rows: usize = $n * $n;
                 $body
             }
             2 => {
                 const $n: usize = 2;
+                #[allow(dead_code)]
+                const $rows: usize = $n * $n;
                 $body
             }
             3 => {
                 const $n: usize = 3;
+                #[allow(dead_code)]
+                const $rows: usize = $n * $n;
                 $body
             }
             _ => {
                 const $n: usize = mpm_kernels::MAX_NODES_PER_AXIS;
+                #[allow(dead_code)]
+                const $rows: usize = $n * $n;
                 $body
             }
         }
