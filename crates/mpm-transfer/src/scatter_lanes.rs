@@ -173,7 +173,8 @@ impl<T: Real, const D: usize> ScatterLanes<T, D> {
         let zero = T::zero();
         let strides = buf.strides();
         // Every node's contribution per lane (`node_mass[row][j₀][l]`, …): written in
-        // full before they are read in 3-D, so no zeroing is left in the code.
+        // full before they are read in 3-D, so no zeroing is left in the code
+        // (`node_impulse` is touched only when `SEPARATE`, else dropped as unused).
         let mut node_mass = [[[zero; LANES]; N]; R];
         let mut node_momentum = [[[[zero; LANES]; D]; N]; R];
         let mut node_impulse = [[[[zero; LANES]; D]; N]; R];
