@@ -108,11 +108,7 @@ impl<T: Real, const D: usize> ScatterLanes<T, D> {
                 return unsafe { self.scatter_avx2::<K, G>(stencils, len, separate, h, buf) };
             }
         }
-        with_nodes_per_axis!(K, N, R => if separate {
-            self.scatter_lanes::<K, G, N, R, true>(stencils, len, h, buf)
-        } else {
-            self.scatter_lanes::<K, G, N, R, false>(stencils, len, h, buf)
-        });
+        self.scatter_sized::<K, G>(stencils, len, separate, h, buf);
     }
 
     /// [`Self::scatter_lanes`] compiled for AVX-512 (same bits as any other target).
@@ -126,17 +122,27 @@ impl<T: Real, const D: usize> ScatterLanes<T, D> {
         h: T,
         buf: &mut LocalBuffer<'_, T, D>,
     ) {
-        with_nodes_per_axis!(K, N, R => if separate {
-            self.scatter_lanes::<K, G, N, R, true>(stencils, len, h, buf)
-        } else {
-            self.scatter_lanes::<K, G, N, R, false>(stencils, len, h, buf)
-        })
+        self.scatter_sized::<K, G>(stencils, len, separate, h, buf)
     }
 
     /// [`Self::scatter_lanes`] compiled for AVX2.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
     fn scatter_avx2<K: Kernel, G: GridLayout>(
+        &mut self,
+        stencils: &StencilLanes<T, D>,
+        len: usize,
+        separate: bool,
+        h: T,
+        buf: &mut LocalBuffer<'_, T, D>,
+    ) {
+        self.scatter_sized::<K, G>(stencils, len, separate, h, buf)
+    }
+
+    /// [`Self::scatter_lanes`] with its tables sized to `K` and the impulse kept apart
+    /// or not as `separate` says (inlined into each target's compiled copy).
+    #[inline(always)]
+    fn scatter_sized<K: Kernel, G: GridLayout>(
         &mut self,
         stencils: &StencilLanes<T, D>,
         len: usize,
