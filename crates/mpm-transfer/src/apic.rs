@@ -4,7 +4,10 @@
 //! `methods.md` §3). That pairing conserves angular momentum exactly. `F` is updated
 //! with `Σ v_i ∇wᵀ` and the force is the classic `−V τ ∇w`.
 
-use crate::scheme::{affine_from_stored, Gathered, Needs, ParticleUpdate, TransferScheme};
+use crate::scheme::{
+    affine_from_stored, Gathered, GatheredMatrix, Needs, ParticleUpdate, PlainUpdate,
+    TransferScheme,
+};
 use mpm_math::{Matrix, Real, Vector};
 
 /// Affine particle-in-cell transfer.
@@ -35,6 +38,16 @@ impl<T: Real, const D: usize> TransferScheme<T, D> for Apic {
         d_inv: Option<&Matrix<T, D>>,
     ) -> Matrix<T, D> {
         affine_from_stored(stored, d_inv)
+    }
+    fn plain_update(&self, gradient_form: bool) -> Option<PlainUpdate> {
+        Some(PlainUpdate {
+            velocity_gradient: GatheredMatrix::VelocityGradient,
+            affine: Some(if gradient_form {
+                GatheredMatrix::VelocityGradient
+            } else {
+                GatheredMatrix::AffineMoment
+            }),
+        })
     }
     #[inline(always)]
     fn update(

@@ -9,6 +9,7 @@ use crate::particles::{Particles, ReorderScratch};
 use crate::scatter_lanes::ScatterLanes;
 use crate::scheme::{Gathered, TransferScheme};
 use crate::separable::AxisFactors;
+use crate::update_lanes::{update_run, LaneState, RunArrays, StoredState};
 use crate::{advect_checked, StepError};
 use mpm_constitutive::{Material, StateMut};
 use mpm_grid::{optional_chunks, BlockSparseGrid, Collider, GridLayout, BLOCK};
@@ -708,6 +709,24 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
         } = particles;
         let (id, material) = (&*id, &*material);
         let n = x.len();
+        // Runs of one material in one of the common cases are updated in lanes
+        // (`update_lanes`); the rest, and any run in which a check fails, particle
+        // by particle.
+        let plan = if D == 3 {
+            scheme.plain_update(gradient_form)
+        } else {
+            None
+        };
+        let stored = StoredState {
+            deformation: !deformation.is_empty(),
+            plastic: !plastic.is_empty(),
+            jacobian: !jacobian.is_empty(),
+            velocity_gradient: !velocity_gradient.is_empty(),
+        };
+        let lane_states: Vec<Option<LaneState<'_, T>>> = materials
+            .iter()
+            .map(|m| plan.and_then(|_| LaneState::of(m, stored)))
+            .collect();
 
         let one = |p: usize,
                    g: &Gathered<T, D>,
@@ -754,11 +773,6 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
             .map_erased(&|(c, (xs, vs, as_, fs, qs, js, ls))| {
                 flush_subnormals(|| {
                     let mut worst: Option<StepError> = None;
-                    let mut as_ = as_.iter_mut();
-                    let mut fs = fs.iter_mut();
-                    let mut qs = qs.iter_mut();
-                    let mut js = js.iter_mut();
-                    let mut ls = ls.iter_mut();
                     let mut gathered = [Gathered::zeros(); STENCIL_LANES];
                     let mut scratch = gather.scratch();
                     let start = c * PARTICLE_CHUNK;
@@ -772,18 +786,56 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
                         while e < xs.len() && e - s < STENCIL_LANES && homes[e] == home {
                             e += 1;
                         }
-                        gather.gather(&mut scratch, grid, home, &xs[s..e], &needs, &mut gathered);
+                        let kind = material[start + s];
+                        let lanes = match (&plan, lane_states[kind as usize]) {
+                            (Some(plan), Some(state))
+                                if material[start + s..start + e].iter().all(|&m| m == kind) =>
+                            {
+                                Some((plan, state))
+                            }
+                            _ => None,
+                        };
+                        let sums = match lanes {
+                            Some(_) => {
+                                gather.gather_lanes(&mut scratch, grid, home, &xs[s..e], &needs)
+                            }
+                            None => None,
+                        };
+                        match (lanes, sums) {
+                            (Some((plan, state)), Some(sums)) => {
+                                let run = RunArrays {
+                                    x: &mut xs[s..e],
+                                    v: &mut vs[s..e],
+                                    affine: stored_part(as_, s..e),
+                                    deformation: stored_part(fs, s..e),
+                                    jacobian: stored_part(js, s..e),
+                                };
+                                if update_run(sums, plan, state, run, params) {
+                                    s = e;
+                                    continue;
+                                }
+                                sums.write_records(&needs, &mut gathered[..e - s]);
+                            }
+                            (_, Some(sums)) => sums.write_records(&needs, &mut gathered[..e - s]),
+                            (_, None) => gather.gather(
+                                &mut scratch,
+                                grid,
+                                home,
+                                &xs[s..e],
+                                &needs,
+                                &mut gathered,
+                            ),
+                        }
                         for k in s..e {
                             let state = StateMut {
-                                deformation: fs.next(),
-                                plastic: qs.next(),
-                                jacobian: js.next(),
-                                velocity_gradient: ls.next(),
+                                deformation: fs.get_mut(k),
+                                plastic: qs.get_mut(k),
+                                jacobian: js.get_mut(k),
+                                velocity_gradient: ls.get_mut(k),
                             };
                             let (xp, vp) = (&mut xs[k], &mut vs[k]);
-                            if let Some(e) =
-                                one(start + k, &gathered[k - s], xp, vp, as_.next(), state)
-                            {
+                            let ap = as_.get_mut(k);
+                            if let Some(e) = one(start + k, &gathered[k - s], xp, vp, ap, state) {
                                 worst = Some(e.lowest(worst));
                             }
                         }
@@ -817,6 +869,16 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
             t.add_point(m, &x, &p);
         });
         t
+    }
+}
+
+/// Items `range` of a particle array that the scene stores, or the empty array.
+#[inline(always)]
+fn stored_part<X>(array: &mut [X], range: Range<usize>) -> &mut [X] {
+    if array.is_empty() {
+        array
+    } else {
+        &mut array[range]
     }
 }
 

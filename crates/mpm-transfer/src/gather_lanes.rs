@@ -18,7 +18,7 @@
 //! `tests/optimised_matches_reference.rs` checks the results against the
 //! node-by-node reference gather.
 
-use crate::explicit_step::ExplicitStepper;
+use crate::explicit_step::{constant_moment, constant_moment_inverse, ExplicitStepper};
 use crate::moment_lanes::MomentInverseLanes;
 use crate::scheme::{Gathered, Needs};
 use crate::separable::{stencil_rows, with_nodes_per_axis, AxisFactorLanes, Lanes};
@@ -56,6 +56,78 @@ pub(crate) trait RunGather<T: Real, const D: usize>: Sync {
         needs: &Needs,
         out: &mut [Gathered<T, D>],
     );
+    /// The same sums in lanes, where this gather forms them so (`None`: call
+    /// [`Self::gather`]), for G2P's update of a whole run in lanes.
+    fn gather_lanes<'s>(
+        &self,
+        _scratch: &'s mut Self::Scratch,
+        _grid: &BlockSparseGrid<T, D>,
+        _home: u32,
+        _xs: &[Vector<T, D>],
+        _needs: &Needs,
+    ) -> Option<&'s GatheredLanes<T, D>> {
+        None
+    }
+}
+
+/// The grid sums of a run of up to [`STENCIL_LANES`] particles in lanes, averaged
+/// over the grids: `velocity[c][l]` for component `c` of lane `l`, matrix entry
+/// `(c, a)` at `[c][a][l]`; and each particle's `D⁻¹` (see [`Gathered`]). Only
+/// the sums that the gather's [`Needs`] ask for are current.
+pub(crate) struct GatheredLanes<T, const D: usize> {
+    pub velocity: [Lanes<T>; D],
+    pub velocity_change: [Lanes<T>; D],
+    pub affine_moment: [[Lanes<T>; D]; D],
+    pub velocity_gradient: [[Lanes<T>; D]; D],
+    /// `D⁻¹` where it is the same constant for every particle, else `None` and
+    /// per lane in `moments`.
+    pub constant_moment_inverse: Option<Matrix<T, D>>,
+    pub moments: MomentInverseLanes<T, D>,
+}
+
+impl<T: Real, const D: usize> GatheredLanes<T, D> {
+    /// Every sum zero, `D⁻¹` not constant (and not invertible).
+    pub fn zeros() -> Self {
+        let zero = [[T::zero(); LANES]; D];
+        GatheredLanes {
+            velocity: zero,
+            velocity_change: zero,
+            affine_moment: [zero; D],
+            velocity_gradient: [zero; D],
+            constant_moment_inverse: None,
+            moments: MomentInverseLanes::default(),
+        }
+    }
+
+    /// Lanes `0..out.len()` into `out`, as one particle at a time: the sums that
+    /// `needs` asks for, in place (the other fields keep their values). Assigning a
+    /// zeroed `Gathered` first had the compiler copy a template built with narrow
+    /// stores through wide loads, a store-forwarding stall per particle (12 % of
+    /// the gather on AMD Zen 4); the matrices go through a transposition in
+    /// registers, where the compiler's own lane-to-record copy used a gather per
+    /// particle and matrix.
+    #[inline(always)]
+    pub fn write_records(&self, needs: &Needs, out: &mut [Gathered<T, D>]) {
+        for (l, o) in out.iter_mut().enumerate() {
+            for c in 0..D {
+                o.velocity[c] = self.velocity[c][l];
+            }
+            if needs.old_velocity {
+                for c in 0..D {
+                    o.velocity_change[c] = self.velocity_change[c][l];
+                }
+            }
+            if needs.moment_inverse {
+                o.moment_inverse = self.constant_moment_inverse.or_else(|| self.moments.get(l));
+            }
+        }
+        if needs.affine_moment {
+            write_matrices(&self.affine_moment, out, |o| &mut o.affine_moment);
+        }
+        if needs.velocity_gradient {
+            write_matrices(&self.velocity_gradient, out, |o| &mut o.velocity_gradient);
+        }
+    }
 }
 
 /// The gather of kernel `K` on layout `G`, [`STENCIL_LANES`] particles at a time
@@ -71,7 +143,7 @@ pub(crate) struct LaneGather<T, K, G> {
 /// first one.
 pub(crate) struct GatherScratch<T, const D: usize> {
     stencils: StencilLanes<T, D>,
-    moments: MomentInverseLanes<T, D>,
+    sums: GatheredLanes<T, D>,
     velocity: [[[T; TILE_NODES]; D]; 2],
     velocity_old: [[[T; TILE_NODES]; D]; 2],
     home: Option<u32>,
@@ -83,7 +155,7 @@ impl<T: Real, const D: usize, K: Kernel, G: GridLayout> RunGather<T, D> for Lane
     fn scratch(&self) -> Self::Scratch {
         GatherScratch {
             stencils: StencilLanes::default(),
-            moments: MomentInverseLanes::default(),
+            sums: GatheredLanes::zeros(),
             velocity: [[[T::zero(); TILE_NODES]; D]; 2],
             velocity_old: [[[T::zero(); TILE_NODES]; D]; 2],
             home: None,
@@ -100,6 +172,21 @@ impl<T: Real, const D: usize, K: Kernel, G: GridLayout> RunGather<T, D> for Lane
         needs: &Needs,
         out: &mut [Gathered<T, D>],
     ) {
+        let sums = self.gather_lanes(scratch, grid, home, xs, needs);
+        if let Some(sums) = sums {
+            sums.write_records(needs, &mut out[..xs.len()]);
+        }
+    }
+
+    #[inline(always)]
+    fn gather_lanes<'s>(
+        &self,
+        scratch: &'s mut Self::Scratch,
+        grid: &BlockSparseGrid<T, D>,
+        home: u32,
+        xs: &[Vector<T, D>],
+        needs: &Needs,
+    ) -> Option<&'s GatheredLanes<T, D>> {
         let h = self.h;
         let extent = ExplicitStepper::<T, D, K, G>::buffer_extent();
         let view = grid.gather_view(home as usize);
@@ -126,19 +213,20 @@ impl<T: Real, const D: usize, K: Kernel, G: GridLayout> RunGather<T, D> for Lane
             .stencils
             .fill::<K>(xs, T::one() / h, offsets, G::GRIDS);
         let origin = view.origin();
-        let args = (&*scratch, origin, extent, xs.len(), needs, h);
-        dispatch_sums::<T, D, K, G>(args, out);
+        let tiles = (&scratch.velocity, &scratch.velocity_old);
+        let args = (&scratch.stencils, tiles, origin, extent, needs, h);
+        dispatch_sums::<T, D, K, G>(args, &mut scratch.sums);
         if needs.moment_inverse {
             // `D_p⁻¹` as P2G forms it: the constant `I / (c h²)` where there is one,
             // else inverted in lanes (the bits of `moment_inverse`), not a general
             // 3×3 inverse per particle in the update.
-            scratch
-                .moments
-                .fill_unless_constant::<K, G>(&scratch.stencils, h);
-            for (l, o) in out.iter_mut().enumerate().take(xs.len()) {
-                o.moment_inverse = scratch.moments.inverse::<K, G>(l, h);
+            let constant = constant_moment::<T, K, G>(h).map(constant_moment_inverse::<T, D>);
+            if constant.is_none() {
+                scratch.sums.moments.fill::<K, G>(&scratch.stencils, h);
             }
+            scratch.sums.constant_moment_inverse = constant;
         }
+        Some(&scratch.sums)
     }
 }
 
@@ -146,7 +234,7 @@ impl<T: Real, const D: usize, K: Kernel, G: GridLayout> RunGather<T, D> for Lane
 #[inline(always)]
 fn dispatch_sums<T: Real, const D: usize, K: Kernel, G: GridLayout>(
     args: SumArgs<'_, T, D>,
-    out: &mut [Gathered<T, D>],
+    out: &mut GatheredLanes<T, D>,
 ) {
     #[cfg(target_arch = "x86_64")]
     {
@@ -162,12 +250,13 @@ fn dispatch_sums<T: Real, const D: usize, K: Kernel, G: GridLayout>(
     with_nodes_per_axis!(K, N => sums_lanes::<T, D, K, G, false, N>(args, out));
 }
 
-/// What [`sums_lanes`] reads: the filled scratch, the tile's origin and extent, the
-/// particles in the run, what to gather and the grid spacing.
+/// What [`sums_lanes`] reads: the run's stencils, the node velocities and old
+/// velocities of the tile (per grid), its origin and extent, what to gather and the
+/// grid spacing.
 type SumArgs<'a, T, const D: usize> = (
-    &'a GatherScratch<T, D>,
+    &'a StencilLanes<T, D>,
+    (&'a [[[T; TILE_NODES]; D]; 2], &'a [[[T; TILE_NODES]; D]; 2]),
     [i32; D],
-    usize,
     usize,
     &'a Needs,
     T,
@@ -178,7 +267,7 @@ type SumArgs<'a, T, const D: usize> = (
 #[target_feature(enable = "avx512f")]
 fn sums_avx512<T: Real, const D: usize, K: Kernel, G: GridLayout>(
     args: SumArgs<'_, T, D>,
-    out: &mut [Gathered<T, D>],
+    out: &mut GatheredLanes<T, D>,
 ) {
     with_nodes_per_axis!(K, N => sums_lanes::<T, D, K, G, true, N>(args, out));
 }
@@ -188,7 +277,7 @@ fn sums_avx512<T: Real, const D: usize, K: Kernel, G: GridLayout>(
 #[target_feature(enable = "avx2")]
 fn sums_avx2<T: Real, const D: usize, K: Kernel, G: GridLayout>(
     args: SumArgs<'_, T, D>,
-    out: &mut [Gathered<T, D>],
+    out: &mut GatheredLanes<T, D>,
 ) {
     with_nodes_per_axis!(K, N => sums_lanes::<T, D, K, G, false, N>(args, out));
 }
@@ -308,10 +397,9 @@ fn sums_lanes<
     const AVX512: bool,
     const N: usize,
 >(
-    (scratch, origin, extent, len, needs, h): SumArgs<'_, T, D>,
-    out: &mut [Gathered<T, D>],
+    (stencils, (tiles, tiles_old), origin, extent, needs, h): SumArgs<'_, T, D>,
+    out: &mut GatheredLanes<T, D>,
 ) {
-    let stencils = &scratch.stencils;
     let n = N;
     let rows = stencil_rows::<K, D>();
     let zero = T::zero();
@@ -324,7 +412,7 @@ fn sums_lanes<
     let mut affine_moment = [[[zero; LANES]; D]; D];
     let mut velocity_gradient = [[[zero; LANES]; D]; D];
     for k in 0..G::GRIDS {
-        let (tile, tile_old) = (&scratch.velocity[k], &scratch.velocity_old[k]);
+        let (tile, tile_old) = (&tiles[k], &tiles_old[k]);
         // Each lane's first node in the tile.
         let mut first = [0isize; LANES];
         for a in 0..D {
@@ -407,58 +495,43 @@ fn sums_lanes<
             }
         }
     }
-    // The average over the grids, into each particle's `Gathered`: only the sums
-    // asked for, in place (see `RunGather::gather`). Assigning a zeroed `Gathered`
-    // first had the compiler copy a template built with narrow stores through wide
-    // loads, a store-forwarding stall per particle (12 % of this function on AMD
-    // Zen 4); the matrices go through a transposition in registers, where the
-    // compiler's own lane-to-record copy used a gather per particle and matrix.
+    // The average over the grids (every lane: the sums of a lane past the run are
+    // never read).
     let gw = T::lit(G::gather_weight());
-    for (l, o) in out.iter_mut().enumerate().take(len) {
+    let scale = |v: &[Lanes<T>; D], o: &mut [Lanes<T>; D]| {
         for c in 0..D {
-            o.velocity[c] = velocity[c][l] * gw;
-        }
-        if needs.old_velocity {
-            for c in 0..D {
-                o.velocity_change[c] = velocity_change[c][l] * gw;
+            for l in 0..LANES {
+                o[c][l] = v[c][l] * gw;
             }
         }
+    };
+    scale(&velocity, &mut out.velocity);
+    if needs.old_velocity {
+        scale(&velocity_change, &mut out.velocity_change);
     }
-    if needs.affine_moment {
-        write_matrices(&affine_moment, gw, &mut out[..len], |o| {
-            &mut o.affine_moment
-        });
-    }
-    if needs.velocity_gradient {
-        write_matrices(&velocity_gradient, gw, &mut out[..len], |o| {
-            &mut o.velocity_gradient
-        });
+    for c in 0..D {
+        if needs.affine_moment {
+            scale(&affine_moment[c], &mut out.affine_moment[c]);
+        }
+        if needs.velocity_gradient {
+            scale(&velocity_gradient[c], &mut out.velocity_gradient[c]);
+        }
     }
 }
 
-/// `*field(out[l]) = m[·][·][l] · gw` (entry `(c, a)` from `m[c][a]`) for every
-/// particle of `out` (at most [`LANES`]): for 3×3 matrices through [`from_lanes`], a
+/// `*field(out[l]) = m[·][·][l]` (entry `(c, a)` from `m[c][a]`) for every particle
+/// of `out` (at most [`LANES`]): for 3×3 matrices through [`from_lanes`], a
 /// transposition in registers for a full run of `f32` on AVX-512 (the same values
 /// as the entry-by-entry copy, which serves the other cases).
 #[inline(always)]
 fn write_matrices<T: Real, const D: usize>(
-    m: &[[[T; LANES]; D]; D],
-    gw: T,
+    m: &[[Lanes<T>; D]; D],
     out: &mut [Gathered<T, D>],
     field: impl Fn(&mut Gathered<T, D>) -> &mut Matrix<T, D>,
 ) {
     if D == 3 && LANES == RECORD_LANES {
-        // Column-major records: number `3a + c` is entry `(c, a)`.
-        let mut lanes: RecordLanes<T, 9> = [[T::zero(); RECORD_LANES]; 9];
-        for c in 0..D {
-            for a in 0..D {
-                for l in 0..LANES {
-                    lanes[D * a + c][l] = m[c][a][l] * gw;
-                }
-            }
-        }
         let mut records = [zero_matrix::<T, D>(); LANES];
-        from_lanes(&lanes, &mut records[..out.len()]);
+        matrices_from_lanes(m, &mut records[..out.len()]);
         for (o, r) in out.iter_mut().zip(&records) {
             *field(o) = *r;
         }
@@ -468,10 +541,28 @@ fn write_matrices<T: Real, const D: usize>(
         let f = field(o);
         for c in 0..D {
             for a in 0..D {
-                f[(c, a)] = m[c][a][l] * gw;
+                f[(c, a)] = m[c][a][l];
             }
         }
     }
+}
+
+/// `records[l]` = the 3×3 matrix of lane `l` (entry `(c, a)` from `m[c][a]`), by
+/// [`from_lanes`]. `D` must be 3.
+#[inline(always)]
+pub(crate) fn matrices_from_lanes<T: Real, const D: usize>(
+    m: &[[Lanes<T>; D]; D],
+    records: &mut [Matrix<T, D>],
+) {
+    assert!(D == 3 && LANES == RECORD_LANES);
+    // Column-major records: number `3a + c` is entry `(c, a)`.
+    let mut lanes: RecordLanes<T, 9> = [[T::zero(); RECORD_LANES]; 9];
+    for c in 0..D {
+        for a in 0..D {
+            lanes[D * a + c] = m[c][a];
+        }
+    }
+    from_lanes(&lanes, records);
 }
 
 #[cfg(test)]

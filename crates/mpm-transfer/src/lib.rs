@@ -22,6 +22,7 @@ mod scatter_lanes;
 pub mod scheme;
 mod separable;
 pub mod timestep;
+mod update_lanes;
 
 pub use apic::Apic;
 pub use diagnostics::{component_sizes, connected_components, particle_totals, Fragments, Totals};

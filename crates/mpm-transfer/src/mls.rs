@@ -4,7 +4,10 @@
 //! On the dual grid the averaged moment matrix is block-diagonal `[[1,0],[0,D_p]]`
 //! (`methods.md` §3), so the same formulas hold with the ½-averaged sums.
 
-use crate::scheme::{affine_from_stored, Gathered, Needs, ParticleUpdate, TransferScheme};
+use crate::scheme::{
+    affine_from_stored, Gathered, GatheredMatrix, Needs, ParticleUpdate, PlainUpdate,
+    TransferScheme,
+};
 use mpm_math::{Matrix, Real, Vector};
 
 /// Moving-least-squares MPM transfer.
@@ -36,6 +39,19 @@ impl<T: Real, const D: usize> TransferScheme<T, D> for Mls {
         d_inv: Option<&Matrix<T, D>>,
     ) -> Matrix<T, D> {
         affine_from_stored(stored, d_inv)
+    }
+    fn plain_update(&self, gradient_form: bool) -> Option<PlainUpdate> {
+        Some(if gradient_form {
+            PlainUpdate {
+                velocity_gradient: GatheredMatrix::VelocityGradient,
+                affine: Some(GatheredMatrix::VelocityGradient),
+            }
+        } else {
+            PlainUpdate {
+                velocity_gradient: GatheredMatrix::AffineMomentTimesInverse,
+                affine: Some(GatheredMatrix::AffineMoment),
+            }
+        })
     }
     #[inline(always)]
     fn update(

@@ -126,6 +126,13 @@ impl<T: Real, const D: usize> MomentInverseLanes<T, D> {
         }
     }
 
+    /// Every lane's `D_p⁻¹` (entry `(r, c)` of lane `l` at `[r][c][l]`), and
+    /// whether it is invertible (where not, the entries are not `D_p⁻¹`).
+    #[inline(always)]
+    pub fn lanes(&self) -> (&[[[T; LANES]; D]; D], &[bool; LANES]) {
+        (&self.inverse, &self.invertible)
+    }
+
     /// Lane `l`'s `D_p⁻¹` (`None` where singular).
     #[inline(always)]
     pub fn get(&self, l: usize) -> Option<Matrix<T, D>> {

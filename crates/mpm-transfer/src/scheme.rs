@@ -51,6 +51,27 @@ pub struct Needs {
 }
 
 /// A particle's update from its gathered grid quantities.
+/// A matrix of [`Gathered`], as a [`PlainUpdate`] names it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum GatheredMatrix {
+    /// `Σ vᵢ ∇wᵀ`.
+    VelocityGradient,
+    /// `B`.
+    AffineMoment,
+    /// `B D⁻¹` (`0` where `D` is singular).
+    AffineMomentTimesInverse,
+}
+
+/// A [`ParticleUpdate`] whose velocity is the gathered `Σ w vᵢ` and whose matrices
+/// are gathered sums ([`TransferScheme::plain_update`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PlainUpdate {
+    /// What [`ParticleUpdate::velocity_gradient`] is.
+    pub velocity_gradient: GatheredMatrix,
+    /// What [`ParticleUpdate::affine`] is (`None`: the scheme stores none).
+    pub affine: Option<GatheredMatrix>,
+}
+
 #[derive(Clone, Copy, Debug)]
 pub struct ParticleUpdate<T: Real, const D: usize> {
     /// New velocity.
@@ -83,6 +104,13 @@ pub trait TransferScheme<T: Real, const D: usize>: Send + Sync {
         stored: Option<&Matrix<T, D>>,
         moment_inverse: Option<&Matrix<T, D>>,
     ) -> Matrix<T, D>;
+    /// [`Self::update`] described, where the new velocity is the gathered `Σ w vᵢ`
+    /// and each matrix one of the gathered sums (`None` otherwise, e.g. FLIP): G2P
+    /// then updates whole runs of particles in lanes. Must give the same values as
+    /// `update` (`tests/optimised_matches_reference.rs`, and this module's tests).
+    fn plain_update(&self, _gradient_form: bool) -> Option<PlainUpdate> {
+        None
+    }
     /// The particle update from its gather.
     fn update(
         &self,
@@ -149,6 +177,9 @@ impl<T: Real, const D: usize> TransferScheme<T, D> for Transfer<T> {
         moment_inverse: Option<&Matrix<T, D>>,
     ) -> Matrix<T, D> {
         dispatch!(self, s => s.p2g_affine(stored, moment_inverse))
+    }
+    fn plain_update(&self, gradient_form: bool) -> Option<PlainUpdate> {
+        dispatch!(self, s => TransferScheme::<T, D>::plain_update(s, gradient_form))
     }
     #[inline(always)]
     fn update(

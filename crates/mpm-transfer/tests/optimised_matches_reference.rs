@@ -1,8 +1,11 @@
 //! The optimised P2G/G2P loops (per-axis tables, separable `D_p`, shared sin/cos on
 //! the dual grid, precomputed node indices) against the straightforward node-by-node
 //! reference (`ExplicitStepper::step_reference`), f64: every kernel × layout ×
-//! scheme, an elastic solid and a viscous fluid, walls and gravity on, 12 steps;
-//! and f32 for the two benchmark kernels (its own tolerance, at its test).
+//! scheme, an elastic solid, an inviscid and a viscous fluid (the first two take
+//! G2P's update in lanes with PIC, APIC and MLS, the last the particle-by-particle
+//! one), walls and gravity on, 12 steps; and f32 for the two benchmark kernels (its
+//! own tolerance, at its test). Last, steps that fail: the same error as the
+//! reference's, where the failing particle sits in a run updated in lanes.
 //!
 //! Both compute the same sums in a different order, so they differ by round-off:
 //! ~1e-16 relative per operation, amplified by at most a few hundred operations per
@@ -30,25 +33,30 @@ fn uniform_centred(mut seed: u64) -> impl FnMut() -> f64 {
     }
 }
 
-fn scene<T: Real>(fluid: bool, affine: bool) -> (Particles<T, 3>, Vec<Material<T>>) {
-    let needs = if fluid {
-        StateNeeds {
-            jacobian: true,
-            velocity_gradient: true,
-            ..StateNeeds::default()
-        }
-    } else {
-        StateNeeds {
-            deformation: true,
-            ..StateNeeds::default()
-        }
+/// The material of a test scene.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Body {
+    Solid,
+    Fluid,
+    ViscousFluid,
+}
+
+const BODIES: [Body; 3] = [Body::Solid, Body::Fluid, Body::ViscousFluid];
+
+fn scene<T: Real>(body: Body, affine: bool) -> (Particles<T, 3>, Vec<Material<T>>) {
+    let fluid = body != Body::Solid;
+    let needs = StateNeeds {
+        deformation: !fluid,
+        jacobian: fluid,
+        velocity_gradient: body == Body::ViscousFluid,
+        ..StateNeeds::default()
     };
-    let material = if fluid {
-        Material::JFluid(JFluid::new(2e3, 7.0, 0.5).unwrap())
-    } else {
-        Material::Elastic(ElasticModel::FixedCorotated(
+    let material = match body {
+        Body::Solid => Material::Elastic(ElasticModel::FixedCorotated(
             FixedCorotated::from_young_poisson(2e4, 0.3).unwrap(),
-        ))
+        )),
+        Body::Fluid => Material::JFluid(JFluid::new(2e3, 7.0, 0.0).unwrap()),
+        Body::ViscousFluid => Material::JFluid(JFluid::new(2e3, 7.0, 0.5).unwrap()),
     };
     let mut p = Particles::new(affine, needs);
     let dx = H / 2.0;
@@ -90,8 +98,8 @@ fn scene<T: Real>(fluid: bool, affine: bool) -> (Particles<T, 3>, Vec<Material<T
     (p, vec![material])
 }
 
-fn compare<K: Kernel, L: GridLayout>(transfer: Transfer<f64>, fluid: bool) {
-    compare_in::<f64, K, L>(transfer, fluid, 1e-11);
+fn compare<K: Kernel, L: GridLayout>(transfer: Transfer<f64>, body: Body) {
+    compare_in::<f64, K, L>(transfer, body, 1e-11);
 }
 
 /// Steps the scene 12 times on the optimised and the reference path in `T` and
@@ -99,11 +107,12 @@ fn compare<K: Kernel, L: GridLayout>(transfer: Transfer<f64>, fluid: bool) {
 /// `tolerance` (relative; see the module docs).
 fn compare_in<T: Real, K: Kernel, L: GridLayout>(
     transfer: Transfer<T>,
-    fluid: bool,
+    body: Body,
     tolerance: f64,
 ) {
     let affine = matches!(transfer, Transfer::Apic(_) | Transfer::Mls(_));
-    let (mut a, materials) = scene::<T>(fluid, affine);
+    let fluid = body != Body::Solid;
+    let (mut a, materials) = scene::<T>(body, affine);
     let mut b = a.clone();
     let lo = Vector3::zeros();
     let hi = Vector3::from_element(T::one());
@@ -125,7 +134,7 @@ fn compare_in<T: Real, K: Kernel, L: GridLayout>(
             .unwrap();
         params.time += params.dt;
     }
-    let label = format!("{} {:?} fluid={fluid}", K::NAME, transfer);
+    let label = format!("{} {:?} {body:?}", K::NAME, transfer);
     assert_eq!(a.id, b.id, "{label}: same particle order");
     let f = |m: &Matrix3<T>| m.map(|x| x.to_f64());
     let rel = |x: T, y: T, scale: f64| (x.to_f64() - y.to_f64()).abs() / scale;
@@ -153,11 +162,11 @@ fn compare_in<T: Real, K: Kernel, L: GridLayout>(
 }
 
 fn all_schemes<K: Kernel, L: GridLayout>() {
-    for fluid in [false, true] {
-        compare::<K, L>(Transfer::Pic(Pic), fluid);
-        compare::<K, L>(Transfer::Apic(Apic), fluid);
-        compare::<K, L>(Transfer::Mls(Mls), fluid);
-        compare::<K, L>(Transfer::Flip(Flip { blend: 0.95 }), fluid);
+    for body in BODIES {
+        compare::<K, L>(Transfer::Pic(Pic), body);
+        compare::<K, L>(Transfer::Apic(Apic), body);
+        compare::<K, L>(Transfer::Mls(Mls), body);
+        compare::<K, L>(Transfer::Flip(Flip { blend: 0.95 }), body);
     }
 }
 
@@ -174,10 +183,10 @@ fn compact_dual_matches_reference() {
 /// misplaced entry or lane would give (order 1 relative to the matrix's norm).
 #[test]
 fn compact_dual_and_quadratic_match_reference_in_f32() {
-    for fluid in [false, true] {
+    for body in BODIES {
         for transfer in [Transfer::Apic(Apic), Transfer::Mls(Mls)] {
-            compare_in::<f32, Compact, Dual>(transfer, fluid, 5e-5);
-            compare_in::<f32, QuadraticBSpline, Single>(transfer, fluid, 5e-5);
+            compare_in::<f32, Compact, Dual>(transfer, body, 5e-5);
+            compare_in::<f32, QuadraticBSpline, Single>(transfer, body, 5e-5);
         }
     }
 }
@@ -305,7 +314,7 @@ fn stress_runs_are_bit_identical_to_per_particle_stresses() {
 fn grid_update_skipping_distant_colliders_changes_no_bit() {
     fn check<T: Real, K: Kernel, L: GridLayout>() {
         use mpm_grid::{Collider, ColliderShape};
-        let (mut p, materials) = scene::<T>(false, true);
+        let (mut p, materials) = scene::<T>(Body::Solid, true);
         let lo = Vector3::zeros();
         let hi = Vector3::from_element(T::one());
         let h = T::lit(H);
@@ -372,4 +381,82 @@ fn grid_update_skipping_distant_colliders_changes_no_bit() {
     check::<f64, Compact, Dual>();
     check::<f32, QuadraticBSpline, Single>();
     check::<f64, QuadraticBSpline, Single>();
+}
+
+/// One step of the scene with particle 437 (mid-block, in a run of 16) spoiled,
+/// on the optimised and the reference path: both must fail with the same error
+/// (kind, particle, wording).
+fn failing_step<T: Real, K: Kernel, L: GridLayout>(
+    transfer: Transfer<T>,
+    body: Body,
+    spoil: fn(&mut Particles<T, 3>),
+) -> mpm_transfer::StepError {
+    let (mut a, materials) = scene::<T>(body, true);
+    spoil(&mut a);
+    let mut b = a.clone();
+    let (lo, hi) = (Vector3::zeros(), Vector3::from_element(T::one()));
+    let h = T::lit(H);
+    let params = StepParams {
+        dt: T::lit(2e-4),
+        h,
+        time: T::zero(),
+        gravity: Vector3::new(T::zero(), T::lit(-9.8), T::zero()),
+        colliders: domain_walls(&lo, &hi, h, T::lit(3.0), ContactKind::Slip),
+        domain_min: lo,
+        domain_max: hi,
+    };
+    let fast = ExplicitStepper::<T, 3, K, L>::new().step(&mut a, &materials, &transfer, &params);
+    let slow =
+        ExplicitStepper::<T, 3, K, L>::new().step_reference(&mut b, &materials, &transfer, &params);
+    let label = format!("{} {transfer:?} {body:?}", K::NAME);
+    let (Err(fast), Err(slow)) = (fast, slow) else {
+        panic!("{label}: both steps fail");
+    };
+    // The same kind, particle and wording; the values it quotes (speed, `J`) come
+    // from sums gathered in another order, so they agree to round-off only.
+    let words =
+        |e: &mpm_transfer::StepError| e.to_string().replace(|c: char| c.is_ascii_digit(), "");
+    assert_eq!(
+        fast.particle(),
+        slow.particle(),
+        "{label}: {fast} vs {slow}"
+    );
+    assert_eq!(words(&fast), words(&slow), "{label}: {fast} vs {slow}");
+    fast
+}
+
+/// G2P errors found where runs are updated in lanes: a velocity too large for the
+/// step, a non-finite velocity spread to the grid, and `J ≤ 0` — reported as the
+/// particle-by-particle path reports them (kind, lowest particle), in `f32`
+/// and `f64`, for the two benchmark kernels and both affine transfers.
+#[test]
+fn failing_steps_report_the_reference_error() {
+    fn check<T: Real>() {
+        type Spoil<T> = fn(&mut Particles<T, 3>);
+        let spoils: [(Body, &str, Spoil<T>); 4] = [
+            (Body::Solid, "cells in one step", |p| {
+                p.v[437] = Vector3::new(T::zero(), T::lit(-3e4), T::zero())
+            }),
+            (Body::Fluid, "cells in one step", |p| {
+                p.v[437] = Vector3::new(T::lit(3e4), T::zero(), T::zero())
+            }),
+            (Body::Solid, "not finite", |p| {
+                p.v[437][1] = T::lit(f64::NAN)
+            }),
+            (Body::Fluid, "J", |p| p.jacobian[437] = T::lit(-1.0)),
+        ];
+        for (body, message, spoil) in spoils {
+            for transfer in [Transfer::Apic(Apic), Transfer::Mls(Mls)] {
+                let errors = [
+                    failing_step::<T, Compact, Dual>(transfer, body, spoil),
+                    failing_step::<T, QuadraticBSpline, Single>(transfer, body, spoil),
+                ];
+                for e in errors {
+                    assert!(e.to_string().contains(message), "{body:?}: {e}");
+                }
+            }
+        }
+    }
+    check::<f32>();
+    check::<f64>();
 }
