@@ -63,13 +63,32 @@ pub enum GatheredMatrix {
 }
 
 /// A [`ParticleUpdate`] whose velocity is the gathered `Σ w vᵢ` and whose matrices
-/// are gathered sums ([`TransferScheme::plain_update`]).
+/// are gathered sums ([`TransferScheme::plain_update`]); the scheme's P2G affine
+/// velocity ([`TransferScheme::p2g_affine`]) is then the stored matrix times `D⁻¹`
+/// as [`affine_from_stored`] forms it where it stores one, else zero.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct PlainUpdate {
     /// What [`ParticleUpdate::velocity_gradient`] is.
     pub velocity_gradient: GatheredMatrix,
     /// What [`ParticleUpdate::affine`] is (`None`: the scheme stores none).
     pub affine: Option<GatheredMatrix>,
+}
+
+impl PlainUpdate {
+    /// The matrix `which` of `g`.
+    pub fn matrix<T: Real, const D: usize>(
+        which: GatheredMatrix,
+        g: &Gathered<T, D>,
+    ) -> Matrix<T, D> {
+        match which {
+            GatheredMatrix::VelocityGradient => g.velocity_gradient,
+            GatheredMatrix::AffineMoment => g.affine_moment,
+            GatheredMatrix::AffineMomentTimesInverse => g
+                .moment_inverse
+                .map(|d_inv| g.affine_moment * d_inv)
+                .unwrap_or_else(zero_matrix::<T, D>),
+        }
+    }
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -189,5 +208,67 @@ impl<T: Real, const D: usize> TransferScheme<T, D> for Transfer<T> {
         gradient_form: bool,
     ) -> ParticleUpdate<T, D> {
         dispatch!(self, s => s.update(velocity, gathered, gradient_form))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{Apic, Flip, Mls, Pic};
+
+    fn bits(m: &Matrix<f64, 3>) -> Vec<u64> {
+        m.iter().map(|x| x.to_bits()).collect()
+    }
+
+    /// Each scheme's [`TransferScheme::plain_update`] describes its `update` and
+    /// `p2g_affine` bit for bit (FLIP has none), in both gradient forms, with and
+    /// without an invertible `D`.
+    #[test]
+    fn plain_updates_describe_the_schemes() {
+        let mut seed = 3u64;
+        let mut number = move || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        let schemes = [
+            Transfer::Pic(Pic),
+            Transfer::Apic(Apic),
+            Transfer::Mls(Mls),
+            Transfer::Flip(Flip { blend: 0.9 }),
+        ];
+        for round in 0..40 {
+            let mut g = Gathered::<f64, 3>::zeros();
+            g.velocity = Vector::<f64, 3>::from_fn(|_, _| number());
+            g.affine_moment = Matrix::<f64, 3>::from_fn(|_, _| number());
+            g.velocity_gradient = Matrix::<f64, 3>::from_fn(|_, _| number());
+            let d_inv = Matrix::<f64, 3>::from_fn(|_, _| number());
+            g.moment_inverse = (round % 4 != 0).then_some(d_inv);
+            let stored = Matrix::<f64, 3>::from_fn(|_, _| number());
+            let v = Vector::<f64, 3>::from_fn(|_, _| number());
+            for scheme in schemes {
+                for gradient_form in [false, true] {
+                    let plan = TransferScheme::<f64, 3>::plain_update(&scheme, gradient_form);
+                    let Some(plan) = plan else {
+                        assert!(matches!(scheme, Transfer::Flip(_)));
+                        continue;
+                    };
+                    let up = scheme.update(&v, &g, gradient_form);
+                    assert_eq!(up.velocity, g.velocity, "{scheme:?}");
+                    let l = PlainUpdate::matrix(plan.velocity_gradient, &g);
+                    assert_eq!(bits(&up.velocity_gradient), bits(&l), "{scheme:?}");
+                    let affine = plan.affine.map(|a| PlainUpdate::matrix(a, &g));
+                    assert_eq!(up.affine.map(|a| bits(&a)), affine.map(|a| bits(&a)));
+                    let d = g.moment_inverse.as_ref();
+                    let carried = TransferScheme::<f64, 3>::p2g_affine(&scheme, Some(&stored), d);
+                    let described = match plan.affine {
+                        Some(_) => affine_from_stored(Some(&stored), d),
+                        None => zero_matrix::<f64, 3>(),
+                    };
+                    assert_eq!(bits(&carried), bits(&described), "{scheme:?}");
+                }
+            }
+        }
     }
 }
