@@ -782,10 +782,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
                         // A run: up to STENCIL_LANES particles of one home block, every
                         // sum gathered at the positions before advection.
                         let home = homes[s];
-                        let mut e = s + 1;
-                        while e < xs.len() && e - s < STENCIL_LANES && homes[e] == home {
-                            e += 1;
-                        }
+                        let e = run_end(homes, s);
                         let kind = material[start + s];
                         let lanes = match (&plan, lane_states[kind as usize]) {
                             (Some(plan), Some(state))
@@ -870,6 +867,20 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
         });
         t
     }
+}
+
+/// The end of the run from `s`: the particles after it of the same home block,
+/// at most [`STENCIL_LANES`] in all. Kept out of line: inlined, the loop kept the
+/// caller's iterator positions up to date in memory on every iteration.
+#[inline(never)]
+fn run_end(homes: &[u32], s: usize) -> usize {
+    let home = homes[s];
+    let limit = (s + STENCIL_LANES).min(homes.len());
+    s + 1
+        + homes[s + 1..limit]
+            .iter()
+            .take_while(|&&h| h == home)
+            .count()
 }
 
 /// Items `range` of a particle array that the scene stores, or the empty array.
