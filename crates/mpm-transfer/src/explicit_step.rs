@@ -7,7 +7,7 @@ use crate::gather_lanes::{LaneGather, RunGather};
 use crate::moment_lanes::MomentInverseLanes;
 use crate::particles::{Particles, ReorderScratch};
 use crate::scatter_lanes::ScatterLanes;
-use crate::scheme::{Gathered, TransferScheme};
+use crate::scheme::{Gathered, GatheredMatrix, TransferScheme};
 use crate::separable::AxisFactors;
 use crate::update_lanes::{update_run, LaneState, RunArrays, StoredState};
 use crate::{advect_checked, StepError};
@@ -712,8 +712,13 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
         // Runs of one material in one of the common cases are updated in lanes
         // (`update_lanes`); the rest, and any run in which a check fails, particle
         // by particle.
+        // (A stored `B D⁻¹` is taken only where the velocity gradient is one too:
+        // `update_run` then finds a singular `D` before it writes anything.)
         let plan = if D == 3 {
-            scheme.plain_update(gradient_form)
+            scheme.plain_update(gradient_form).filter(|p| {
+                p.affine != Some(GatheredMatrix::AffineMomentTimesInverse)
+                    || p.velocity_gradient == GatheredMatrix::AffineMomentTimesInverse
+            })
         } else {
             None
         };
