@@ -387,7 +387,8 @@ unsafe fn load_pair_f32_avx512<const D: usize>(
 }
 
 /// The portable lane code behind [`LaneGather::gather`]. Lanes past the run hold
-/// copies of its last particle (their sums are never read).
+/// copies of its last particle, so their sums are that particle's (the lane update
+/// checks them with it; nothing is written from them).
 #[inline(always)]
 fn sums_lanes<
     T: Real,
@@ -495,8 +496,8 @@ fn sums_lanes<
             }
         }
     }
-    // The average over the grids (every lane: the sums of a lane past the run are
-    // never read).
+    // The average over the grids, on every lane (past the run: copies of its last
+    // particle's sums).
     let gw = T::lit(G::gather_weight());
     let scale = |v: &[Lanes<T>; D], o: &mut [Lanes<T>; D]| {
         for c in 0..D {
