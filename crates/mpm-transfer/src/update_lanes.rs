@@ -470,27 +470,24 @@ mod tests {
         for (what, spoil) in breaks {
             let mut c = case(&mut seed);
             spoil(&mut c);
-            let before = (
-                bits(&c.x),
-                bits(&c.v),
-                bits(&c.affine),
-                bits(&c.deformation),
-                c.jacobian.iter().map(|j| j.to_bits()).collect::<Vec<_>>(),
-            );
+            let state_bits = |c: &Case| {
+                let j: Vec<u32> = c.jacobian.iter().map(|j| j.to_bits()).collect();
+                (
+                    bits(&c.x),
+                    bits(&c.v),
+                    bits(&c.affine),
+                    bits(&c.deformation),
+                    j,
+                )
+            };
+            let before = state_bits(&c);
             let state = if what.starts_with('J') {
                 LaneState::VolumeRatio(&fluid)
             } else {
                 LaneState::Deformation(&neo_hookean)
             };
             assert!(!run(&mut c, state, LANES), "{what}: the run fails");
-            let after = (
-                bits(&c.x),
-                bits(&c.v),
-                bits(&c.affine),
-                bits(&c.deformation),
-                c.jacobian.iter().map(|j| j.to_bits()).collect::<Vec<_>>(),
-            );
-            assert!(before == after, "{what}: nothing written");
+            assert!(before == state_bits(&c), "{what}: nothing written");
         }
     }
 }

@@ -98,6 +98,21 @@ fn scene<T: Real>(body: Body, affine: bool) -> (Particles<T, 3>, Vec<Material<T>
     (p, vec![material])
 }
 
+/// The step of the comparisons: the unit box with slip walls, gravity, `dt = 2e-4`.
+fn walled_unit_box<T: Real>() -> StepParams<T, 3> {
+    let (lo, hi) = (Vector3::zeros(), Vector3::from_element(T::one()));
+    let h = T::lit(H);
+    StepParams {
+        dt: T::lit(2e-4),
+        h,
+        time: T::zero(),
+        gravity: Vector3::new(T::zero(), T::lit(-9.8), T::zero()),
+        colliders: domain_walls(&lo, &hi, h, T::lit(3.0), ContactKind::Slip),
+        domain_min: lo,
+        domain_max: hi,
+    }
+}
+
 fn compare<K: Kernel, L: GridLayout>(transfer: Transfer<f64>, body: Body) {
     compare_in::<f64, K, L>(transfer, body, 1e-11);
 }
@@ -114,18 +129,7 @@ fn compare_in<T: Real, K: Kernel, L: GridLayout>(
     let fluid = body != Body::Solid;
     let (mut a, materials) = scene::<T>(body, affine);
     let mut b = a.clone();
-    let lo = Vector3::zeros();
-    let hi = Vector3::from_element(T::one());
-    let h = T::lit(H);
-    let mut params = StepParams {
-        dt: T::lit(2e-4),
-        h,
-        time: T::zero(),
-        gravity: Vector3::new(T::zero(), T::lit(-9.8), T::zero()),
-        colliders: domain_walls(&lo, &hi, h, T::lit(3.0), ContactKind::Slip),
-        domain_min: lo,
-        domain_max: hi,
-    };
+    let mut params = walled_unit_box::<T>();
     let mut fast = ExplicitStepper::<T, 3, K, L>::new();
     let mut slow = ExplicitStepper::<T, 3, K, L>::new();
     for _ in 0..12 {
@@ -394,17 +398,7 @@ fn failing_step<T: Real, K: Kernel, L: GridLayout>(
     let (mut a, materials) = scene::<T>(body, true);
     spoil(&mut a);
     let mut b = a.clone();
-    let (lo, hi) = (Vector3::zeros(), Vector3::from_element(T::one()));
-    let h = T::lit(H);
-    let params = StepParams {
-        dt: T::lit(2e-4),
-        h,
-        time: T::zero(),
-        gravity: Vector3::new(T::zero(), T::lit(-9.8), T::zero()),
-        colliders: domain_walls(&lo, &hi, h, T::lit(3.0), ContactKind::Slip),
-        domain_min: lo,
-        domain_max: hi,
-    };
+    let params = walled_unit_box::<T>();
     let fast = ExplicitStepper::<T, 3, K, L>::new().step(&mut a, &materials, &transfer, &params);
     let slow =
         ExplicitStepper::<T, 3, K, L>::new().step_reference(&mut b, &materials, &transfer, &params);
