@@ -12,7 +12,7 @@
 //! `G − δ`, `δ ∈ {0,1}^D`, in a fixed order. No atomics, no locks, and the result does
 //! not depend on the number of threads.
 
-use mpm_math::{flush_subnormals, ErasedLoops, Real, Vector};
+use mpm_math::{add_node_records, flush_subnormals, ErasedLoops, Real, Vector};
 use rayon::prelude::*;
 // A fixed, fast hash (rustc's FxHash): the keys are small integer triples, the maps
 // are never iterated for results, and SipHash showed up in profiles of `bin`.
@@ -20,6 +20,8 @@ use rustc_hash::FxHashMap as HashMap;
 
 /// Nodes per block per axis.
 pub const BLOCK: i32 = 4;
+/// `log2(BLOCK)`: node offsets split into block and in-block parts by shift and mask.
+const BLOCK_SHIFT: u32 = BLOCK.trailing_zeros();
 const NONE: u32 = u32::MAX;
 /// Particles per chunk of [`BlockSparseGrid::bin`]'s parallel passes: fixed, so that
 /// the thread count changes only how the work is shared, never the result.
@@ -146,12 +148,6 @@ fn add_record<T: Real, const D: usize>(rec: &mut NodeRecord<T>, mass: T, momentu
     }
 }
 
-/// The momentum of a node record.
-#[inline(always)]
-fn record_momentum<T: Real, const D: usize>(rec: &NodeRecord<T>) -> Vector<T, D> {
-    Vector::<T, D>::from_fn(|a, _| rec[a])
-}
-
 /// Node index of the `l`-th node (x fastest) of the block with block coordinates
 /// `block`.
 #[inline(always)]
@@ -213,8 +209,8 @@ fn flat_node_index<const D: usize>(
     let mut stride = 1usize;
     for a in 0..D {
         let r = (node[a] - origin[a]) as usize;
-        code |= (r >> 2) << a;
-        local += (r & 3) * stride;
+        code |= (r >> BLOCK_SHIFT) << a;
+        local += (r & (BLOCK as usize - 1)) * stride;
         stride *= BLOCK as usize;
     }
     let block = neighbors[code] as usize;
@@ -239,8 +235,8 @@ impl<'a, T: Real, const D: usize> GatherView<'a, T, D> {
         for a in 0..D {
             for j in 0..nodes_per_axis.min(4) {
                 let r = (first[a] + j as i32 - self.origin[a]) as usize;
-                code[a][j] = (r >> 2) << a;
-                local[a][j] = (r & 3) * stride;
+                code[a][j] = (r >> BLOCK_SHIFT) << a;
+                local[a][j] = (r & (BLOCK as usize - 1)) * stride;
             }
             stride *= BLOCK as usize;
         }
@@ -297,6 +293,27 @@ impl<'a, T: Real, const D: usize> GatherView<'a, T, D> {
     /// # Panics
     /// If `extent > 2·BLOCK`.
     pub fn for_each_dense(&self, grid: usize, extent: usize, mut f: impl FnMut(usize, usize)) {
+        self.for_each_dense_row(grid, extent, |dense, flat, len| {
+            for i in 0..len {
+                f(dense + i, flat + i);
+            }
+        });
+    }
+
+    /// [`Self::for_each_dense`] a row at a time: `f(dense, flat, len)` for each
+    /// stretch of at most `BLOCK` nodes along axis 0 that lies in one block, whose
+    /// dense and flat indices both run on by one per node (in the order
+    /// [`Self::for_each_dense`] visits them), so that a row is copied as a slice
+    /// ([`Self::velocities`]).
+    ///
+    /// # Panics
+    /// If `extent > 2·BLOCK`.
+    pub fn for_each_dense_row(
+        &self,
+        grid: usize,
+        extent: usize,
+        mut f: impl FnMut(usize, usize, usize),
+    ) {
         assert!(
             extent <= 2 * BLOCK as usize,
             "a home block reaches {} nodes per axis",
@@ -309,23 +326,33 @@ impl<'a, T: Real, const D: usize> GatherView<'a, T, D> {
         let mut stride = 1usize;
         for a in 0..D {
             for r in 0..extent {
-                code[a][r] = (r >> 2) << a;
-                local[a][r] = (r & 3) * stride;
+                code[a][r] = (r >> BLOCK_SHIFT) << a;
+                local[a][r] = (r & (BLOCK as usize - 1)) * stride;
             }
             stride *= BLOCK as usize;
         }
+        // Along axis 0 the origin is a block's first node: the stretches start at
+        // multiples of `BLOCK`.
+        let block = BLOCK as usize;
+        let rows = extent.pow(D as u32 - 1);
         let mut j = [0usize; D];
-        for dense in 0..extent.pow(D as u32) {
+        for row in 0..rows {
             let (mut c, mut l) = (0usize, 0usize);
-            for a in 0..D {
+            for a in 1..D {
                 c |= code[a][j[a]];
                 l += local[a][j[a]];
             }
-            let block = self.neighbors[c] as usize;
-            debug_assert!(block != NONE as usize);
-            f(dense, grid * self.grid_stride + block * stride + l);
-            // The next node, axis 0 fastest.
-            for ja in j.iter_mut() {
+            let mut start = 0;
+            while start < extent {
+                let len = block.min(extent - start);
+                let b = self.neighbors[c | code[0][start]] as usize;
+                debug_assert!(b != NONE as usize);
+                let flat = grid * self.grid_stride + b * stride + l + local[0][start];
+                f(row * extent + start, flat, len);
+                start += len;
+            }
+            // The next row, axis 1 fastest.
+            for ja in j.iter_mut().skip(1) {
                 *ja += 1;
                 if *ja < extent {
                     break;
@@ -333,6 +360,19 @@ impl<'a, T: Real, const D: usize> GatherView<'a, T, D> {
                 *ja = 0;
             }
         }
+    }
+
+    /// Velocities after the grid update at `len` consecutive flat indices from `flat`
+    /// (a row of [`Self::for_each_dense_row`]).
+    #[inline(always)]
+    pub fn velocities(&self, flat: usize, len: usize) -> &'a [Vector<T, D>] {
+        &self.velocity[flat..flat + len]
+    }
+
+    /// Velocities before the grid update at `len` consecutive flat indices (FLIP only).
+    #[inline(always)]
+    pub fn velocities_old(&self, flat: usize, len: usize) -> &'a [Vector<T, D>] {
+        &self.velocity_old[flat..flat + len]
     }
 }
 
@@ -960,10 +1000,9 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
                                 block_stride *= b;
                                 buffer_stride *= ext;
                             }
-                            for i in 0..len[0] {
-                                let rec = &sn[idx + i];
-                                m[l + i] += rec[3];
-                                p[l + i] += record_momentum::<T, D>(rec);
+                            let (n, row) = (len[0], l..l + len[0]);
+                            add_node_records(&sn[idx..idx + n], &mut m[row.clone()], &mut p[row]);
+                            for i in 0..n {
                                 if separate {
                                     imp[l + i] += si[idx + i];
                                 }
@@ -1374,6 +1413,20 @@ mod tests {
                         origin[1] + (dense / 6) as i32,
                     ];
                     assert_eq!(view.velocity_at(flat), code(grid, node), "{dense}");
+                });
+                assert!(seen.iter().all(|&s| s));
+                // The same nodes a row at a time: stretches within one block, read
+                // as slices.
+                let mut seen = [false; 36];
+                view.for_each_dense_row(grid, 6, |dense, flat, len| {
+                    assert!((1..=BLOCK as usize).contains(&len), "row of {len}");
+                    for (i, v) in view.velocities(flat, len).iter().enumerate() {
+                        let d = dense + i;
+                        assert!(!seen[d], "{d} twice");
+                        seen[d] = true;
+                        let node = [origin[0] + (d % 6) as i32, origin[1] + (d / 6) as i32];
+                        assert_eq!(*v, code(grid, node), "{d}");
+                    }
                 });
                 assert!(seen.iter().all(|&s| s));
             }

@@ -11,6 +11,7 @@
 
 mod erased_loops;
 mod lanes;
+mod node_rows;
 mod polar;
 mod small;
 mod subnormals;
@@ -18,6 +19,7 @@ mod subnormals;
 pub use erased_loops::ErasedLoops;
 pub use lanes::{from_lanes, to_lanes, RecordLanes, RECORD_LANES};
 pub use nalgebra;
+pub use node_rows::{add_node_records, split_components, NODE_ROW_MAX};
 pub use polar::{polar_rotation, polar_rotation_lanes, polar_rotations};
 pub use small::*;
 pub use subnormals::flush_subnormals;

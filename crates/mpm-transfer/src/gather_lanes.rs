@@ -24,7 +24,9 @@ use crate::scheme::{Gathered, Needs};
 use crate::separable::{stencil_rows, with_nodes_per_axis, AxisFactorLanes, Lanes};
 use mpm_grid::{BlockSparseGrid, GridLayout, BLOCK};
 use mpm_kernels::{Kernel, Stencil, StencilLanes, MAX_NODES_PER_AXIS, STENCIL_LANES};
-use mpm_math::{from_lanes, zero_matrix, Matrix, Real, RecordLanes, Vector, RECORD_LANES};
+use mpm_math::{
+    from_lanes, split_components, zero_matrix, Matrix, Real, RecordLanes, Vector, RECORD_LANES,
+};
 use std::marker::PhantomData;
 
 const LANES: usize = STENCIL_LANES;
@@ -193,16 +195,10 @@ impl<T: Real, const D: usize, K: Kernel, G: GridLayout> RunGather<T, D> for Lane
         if scratch.home != Some(home) {
             for k in 0..G::GRIDS {
                 let (tile, tile_old) = (&mut scratch.velocity[k], &mut scratch.velocity_old[k]);
-                view.for_each_dense(k, extent, |dense, flat| {
-                    let v = view.velocity_at(flat);
-                    for c in 0..D {
-                        tile[c][dense] = v[c];
-                    }
+                view.for_each_dense_row(k, extent, |dense, flat, len| {
+                    split_components(view.velocities(flat, len), tile, dense);
                     if needs.old_velocity {
-                        let v = view.velocity_old_at(flat);
-                        for c in 0..D {
-                            tile_old[c][dense] = v[c];
-                        }
+                        split_components(view.velocities_old(flat, len), tile_old, dense);
                     }
                 });
             }
