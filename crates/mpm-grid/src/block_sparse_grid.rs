@@ -161,9 +161,19 @@ fn node_in_block<const D: usize>(block: [i32; D], l: usize) -> [i32; D] {
     node
 }
 
+/// Room for `n` items in `v`, growing to `n` plus an eighth when it has less: the
+/// node arrays follow the occupied blocks, and `Vec`'s doubling would let a scene
+/// whose blocks grow a little at a time hold up to twice the memory it uses.
+fn reserve_tight<X>(v: &mut Vec<X>, n: usize) {
+    if n > v.capacity() {
+        v.reserve_exact(n + n / 8 - v.len());
+    }
+}
+
 /// Clears `v` and fills it with `n` copies of `value` (keeping its capacity).
 fn refill<X: Clone>(v: &mut Vec<X>, n: usize, value: X) {
     v.clear();
+    reserve_tight(v, n);
     v.resize(n, value);
 }
 
@@ -171,6 +181,7 @@ fn refill<X: Clone>(v: &mut Vec<X>, n: usize, value: X) {
 /// for arrays whose parallel chunks each zero themselves right before use, so that
 /// the zeroing runs on every thread and in cache instead of as one serial memset.
 fn resize_stale<X: Clone>(v: &mut Vec<X>, n: usize, value: X) {
+    reserve_tight(v, n);
     v.resize(n, value);
 }
 
@@ -1377,6 +1388,30 @@ mod tests {
             assert_eq!(p[0], node[0] as f64 * m / (grid as f64 + 1.0));
         });
         assert_eq!(total, [72.0, 144.0]);
+    }
+
+    /// Arrays that grow a little at a time (a scene's occupied blocks) keep at most
+    /// an eighth more room than they use, where doubling would keep up to twice.
+    #[test]
+    fn growing_node_arrays_keep_at_most_an_eighth_spare() {
+        let (mut stale, mut filled) = (Vec::<u64>::new(), Vec::<u64>::new());
+        for n in (1..5000).step_by(37) {
+            resize_stale(&mut stale, n, 7);
+            refill(&mut filled, n, 7);
+            for v in [&stale, &filled] {
+                assert_eq!(v.len(), n);
+                assert!(
+                    v.capacity() <= n + n / 8,
+                    "{n} items in room for {}",
+                    v.capacity()
+                );
+            }
+        }
+        // New entries take the value; a stale array keeps what it held.
+        assert!(filled.iter().all(|&x| x == 7));
+        stale[0] = 1;
+        resize_stale(&mut stale, 6000, 9);
+        assert_eq!((stale[0], stale[5999]), (1, 9));
     }
 
     #[test]
