@@ -26,6 +26,9 @@ const NONE: u32 = u32::MAX;
 /// Particles per chunk of [`BlockSparseGrid::bin`]'s parallel passes: fixed, so that
 /// the thread count changes only how the work is shared, never the result.
 const BIN_CHUNK: usize = 1 << 14;
+/// Home cells per call of [`BlockSparseGrid::bin_by`]'s closure: a few vector runs of
+/// 16 particles, and a stack buffer that stays in cache.
+pub const HOME_CELL_BATCH: usize = 64;
 
 /// One home block's private scatter buffer (all grids of the layout).
 pub struct LocalBuffer<'a, T: Real, const D: usize> {
@@ -544,14 +547,16 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
         self.bin_with_halo(home_cell, &[])
     }
 
-    /// [`Self::bin`] with particle `p`'s home cell given by `home_cell(p)` for `p` in
-    /// `0..n` (computed where it is needed, so no array of cells is written and read
-    /// back), into a permutation held by the grid (no allocation while `n` stays).
-    pub fn bin_by<C>(&mut self, n: usize, home_cell: C) -> &[u32]
+    /// [`Self::bin`] with the home cells of particles `0..n` given a batch at a time:
+    /// `home_cells(first, cells)` fills `cells[i]` with particle `first + i`'s (at
+    /// most [`HOME_CELL_BATCH`] per call, so the caller can compute them in vector
+    /// lanes; no array of cells is written and read back), into a permutation held
+    /// by the grid (no allocation while `n` stays).
+    pub fn bin_by<C>(&mut self, n: usize, home_cells: C) -> &[u32]
     where
-        C: Fn(usize) -> [i32; D] + Sync,
+        C: Fn(usize, &mut [[i32; D]]) + Sync,
     {
-        self.bin_by_with_halo(n, home_cell, &[]);
+        self.bin_by_with_halo(n, home_cells, &[]);
         &self.order
     }
 
@@ -561,15 +566,18 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
     /// [`crate::partition`]). Blocks of `halo` that also hold particles here are
     /// ordinary home blocks.
     pub fn bin_with_halo(&mut self, home_cell: &[[i32; D]], halo: &[[i32; D]]) -> Vec<u32> {
-        self.bin_by_with_halo(home_cell.len(), |p| home_cell[p], halo);
+        let copy = |first: usize, cells: &mut [[i32; D]]| {
+            cells.copy_from_slice(&home_cell[first..first + cells.len()]);
+        };
+        self.bin_by_with_halo(home_cell.len(), copy, halo);
         std::mem::take(&mut self.order)
     }
 
     /// [`Self::bin_with_halo`] with the home cells from `home_cell` ([`Self::bin_by`]),
     /// the permutation into `self.order`.
-    fn bin_by_with_halo<C>(&mut self, n: usize, home_cell: C, halo: &[[i32; D]])
+    fn bin_by_with_halo<C>(&mut self, n: usize, home_cells: C, halo: &[[i32; D]])
     where
-        C: Fn(usize) -> [i32; D] + Sync,
+        C: Fn(usize, &mut [[i32; D]]) + Sync,
     {
         // 1. In parallel, per fixed-size chunk of particles: the chunk's blocks in
         // first-seen order, how many of its particles each holds, and each particle's
@@ -583,12 +591,19 @@ impl<T: Real, const D: usize> BlockSparseGrid<T, D> {
             .par_chunks_mut(BIN_CHUNK)
             .enumerate()
             .map(|(chunk, keys)| {
+                let keys_len = keys.len();
                 let mut ids: HashMap<[i32; D], u32> = HashMap::default();
                 let mut found: Vec<[i32; D]> = Vec::new();
                 let mut count: Vec<usize> = Vec::new();
                 let mut last: Option<([i32; D], u32)> = None;
+                let mut batch = [[0i32; D]; HOME_CELL_BATCH];
                 for (i, k) in keys.iter_mut().enumerate() {
-                    let b = home_cell(chunk * BIN_CHUNK + i).map(|v| v.div_euclid(BLOCK));
+                    let at = i % HOME_CELL_BATCH;
+                    if at == 0 {
+                        let len = HOME_CELL_BATCH.min(keys_len - i);
+                        home_cells(chunk * BIN_CHUNK + i, &mut batch[..len]);
+                    }
+                    let b = batch[at].map(|v| v.div_euclid(BLOCK));
                     let id = match last {
                         Some((lb, lid)) if lb == b => lid,
                         _ => {
@@ -1348,7 +1363,9 @@ mod tests {
             let cells = set(n, k);
             let mut fresh = BlockSparseGrid::<f32, 3>::new(2);
             let expected = fresh.bin(&cells);
-            let order = g.bin_by(n, |p| cells[p]);
+            let order = g.bin_by(n, |first, out: &mut [[i32; 3]]| {
+                out.copy_from_slice(&cells[first..first + out.len()]);
+            });
             assert_eq!(order, &expected[..], "{n} particles, k = {k}");
             let at = order.as_ptr();
             assert_eq!(g.home_of_sorted(), fresh.home_of_sorted());

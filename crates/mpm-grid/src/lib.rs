@@ -9,7 +9,7 @@ pub mod layout;
 pub mod partition;
 
 pub use block_sparse_grid::{
-    optional_chunks, BlockSparseGrid, GatherView, LocalBuffer, NodeIndexer, BLOCK,
+    optional_chunks, BlockSparseGrid, GatherView, LocalBuffer, NodeIndexer, BLOCK, HOME_CELL_BATCH,
 };
 pub use boundary::{domain_walls, Collider, ColliderShape, ContactKind};
 pub use layout::{Dual, GridLayout, Single};

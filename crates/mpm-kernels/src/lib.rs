@@ -106,6 +106,13 @@ pub trait Kernel: Copy + Default + Send + Sync + std::fmt::Debug + 'static {
         (xg - T::lit((Self::NODES_PER_AXIS as f64 - 2.0) * 0.5)).floor_index()
     }
 
+    /// [`Self::base_node`] (the same results) in the form that loops over vector lanes
+    /// keep vectorised ([`Real::floor_index_lanes`]).
+    #[inline(always)]
+    fn base_node_lanes<T: Real>(xg: T) -> i32 {
+        (xg - T::lit((Self::NODES_PER_AXIS as f64 - 2.0) * 0.5)).floor_index_lanes()
+    }
+
     /// Weights of the nodes around a particle at `xg` in cell units on this grid
     /// (`xg = x_p/h − grid offset`). The first node is
     /// `floor(xg − (NODES_PER_AXIS − 2)/2)`, so the stencil is centred on the particle.

@@ -14,7 +14,9 @@ use crate::{advect_checked, StepError};
 use mpm_constitutive::{Material, StateMut};
 use mpm_grid::{optional_chunks, BlockSparseGrid, Collider, GridLayout, BLOCK};
 use mpm_kernels::{Kernel, Stencil, StencilLanes, STENCIL_LANES};
-use mpm_math::{flush_subnormals, try_inverse, zero_matrix, ErasedLoops, Matrix, Real, Vector};
+use mpm_math::{
+    flush_subnormals, to_lanes, try_inverse, zero_matrix, ErasedLoops, Matrix, Real, Vector,
+};
 use rayon::prelude::*;
 use std::marker::PhantomData;
 use std::ops::Range;
@@ -384,10 +386,10 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
         let off = T::lit(Self::home_offset());
         let x = &particles.x;
         // The home cell as `home_cells` computes it, inside the binning's pass over
-        // the particles (no array of cells written and read back).
-        let order = self
-            .grid
-            .bin_by(x.len(), |p| Self::home_cell(&x[p], inv_h, off));
+        // the particles (no array of cells written and read back), 16 at a time.
+        let order = self.grid.bin_by(x.len(), |first, cells| {
+            Self::home_cells_of(&x[first..first + cells.len()], inv_h, off, cells)
+        });
         particles.reorder_with(order, &mut self.reorder_scratch);
     }
 
@@ -416,6 +418,27 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
                     *c = Self::home_cell(x, inv_h, off);
                 }
             });
+    }
+
+    /// [`Self::home_cell`] of each position of `xs` into `cells`, the same results,
+    /// on runs of [`STENCIL_LANES`] in vector lanes (the coordinates transposed by
+    /// `to_lanes`, the floor in its lane form).
+    fn home_cells_of(xs: &[Vector<T, D>], inv_h: T, off: T, cells: &mut [[i32; D]]) {
+        for (xs, cells) in xs
+            .chunks(STENCIL_LANES)
+            .zip(cells.chunks_mut(STENCIL_LANES))
+        {
+            let coords: [[T; STENCIL_LANES]; D] = to_lanes(xs, &xs[xs.len() - 1]);
+            for (a, row) in coords.iter().enumerate() {
+                let mut base = [0i32; STENCIL_LANES];
+                for (b, &x) in base.iter_mut().zip(row) {
+                    *b = K::base_node_lanes(x * inv_h - off);
+                }
+                for (cell, b) in cells.iter_mut().zip(base) {
+                    cell[a] = b;
+                }
+            }
+        }
     }
 
     /// The home cell of a particle at `x` ([`Self::home_cells`]); `off` is
@@ -975,6 +998,49 @@ mod tests {
         every_stencil_starts_at_the_home_cell_or_the_next::<QuadraticBSpline, Single>();
         every_stencil_starts_at_the_home_cell_or_the_next::<CubicBSpline, Single>();
         every_stencil_starts_at_the_home_cell_or_the_next::<Linear, Single>();
+    }
+
+    /// The binning's home cells, 16 at a time in lanes, are `home_cell`'s for every
+    /// position (on and next to the quarter-cell lattice, negative ones included),
+    /// for runs of every length up to two full runs.
+    fn lane_home_cells_match<K: Kernel, L: GridLayout>() {
+        let h = 0.37;
+        let (inv_h, off) = (1.0 / h, ExplicitStepper::<f64, 2, K, L>::home_offset());
+        let xs: Vec<Vector<f64, 2>> = pairs(&positions_in_cells())
+            .iter()
+            .map(|p| Vector::<f64, 2>::new(p[0] * h, p[1] * h))
+            .collect();
+        for len in [1, 7, 16, 17, 32] {
+            for start in (0..xs.len() - len).step_by(len) {
+                let run = &xs[start..start + len];
+                let mut cells = vec![[0i32; 2]; len];
+                ExplicitStepper::<f64, 2, K, L>::home_cells_of(run, inv_h, off, &mut cells);
+                for (x, c) in run.iter().zip(&cells) {
+                    let want = ExplicitStepper::<f64, 2, K, L>::home_cell(x, inv_h, off);
+                    assert_eq!(*c, want, "{} {}: x = {x:?}", K::NAME, L::NAME);
+                }
+            }
+        }
+        // f32 in 3-D takes to_lanes' AVX-512 transposition on a full run.
+        let xs: Vec<Vector<f32, 3>> = (0..64)
+            .map(|i| {
+                Vector::<f32, 3>::new(i as f32 * 0.093 - 2.0, i as f32 * -0.41, 0.25 * i as f32)
+            })
+            .collect();
+        let off = ExplicitStepper::<f32, 3, K, L>::home_offset() as f32;
+        let mut cells = vec![[0i32; 3]; 64];
+        ExplicitStepper::<f32, 3, K, L>::home_cells_of(&xs, 4.0, off, &mut cells);
+        for (x, c) in xs.iter().zip(&cells) {
+            assert_eq!(*c, ExplicitStepper::<f32, 3, K, L>::home_cell(x, 4.0, off));
+        }
+    }
+
+    #[test]
+    fn lane_home_cells_are_the_home_cells() {
+        lane_home_cells_match::<Compact, Dual>();
+        lane_home_cells_match::<QuadraticBSpline, Single>();
+        lane_home_cells_match::<CubicBSpline, Dual>();
+        lane_home_cells_match::<Linear, Single>();
     }
 
     /// Particles seeded 2 per cell and axis sit at ¼ and ¾ of a cell (the peers'
