@@ -1002,7 +1002,7 @@ mod tests {
 
     /// The binning's home cells, 16 at a time in lanes, are `home_cell`'s for every
     /// position (on and next to the quarter-cell lattice, negative ones included),
-    /// for runs of every length up to two full runs.
+    /// for runs of 1, 7, 16, 17 and 32 particles.
     fn lane_home_cells_match<K: Kernel, L: GridLayout>() {
         let h = 0.37;
         let (inv_h, off) = (1.0 / h, ExplicitStepper::<f64, 2, K, L>::home_offset());
