@@ -15,6 +15,18 @@ use crate::{Real, Vector};
 /// Rows of at most this many nodes take the vector path.
 pub const NODE_ROW_MAX: usize = 4;
 
+/// True when a row of `n` nodes takes the AVX-512 path: `f32` in 3-D, a `Vector`
+/// being exactly its three numbers, `n ≤ NODE_ROW_MAX`, and the CPU has AVX-512F.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn vector_row<T: Real, const D: usize>(n: usize) -> bool {
+    D == 3
+        && n <= NODE_ROW_MAX
+        && std::any::TypeId::of::<T>() == std::any::TypeId::of::<f32>()
+        && std::mem::size_of::<Vector<T, D>>() == D * std::mem::size_of::<T>()
+        && std::is_x86_feature_detected!("avx512f")
+}
+
 /// `mass[i] += records[i][3]` and `momentum[i][c] += records[i][c]` (`c < D`) for
 /// every node `i` of the row (a record is a node's momentum, padded, then its mass).
 ///
@@ -34,13 +46,8 @@ pub fn add_node_records<T: Real, const D: usize>(
         momentum.len()
     );
     #[cfg(target_arch = "x86_64")]
-    if D == 3
-        && n <= NODE_ROW_MAX
-        && std::any::TypeId::of::<T>() == std::any::TypeId::of::<f32>()
-        && std::mem::size_of::<Vector<T, D>>() == D * std::mem::size_of::<T>()
-        && std::is_x86_feature_detected!("avx512f")
-    {
-        // SAFETY: AVX-512F is present (just detected); `T` is `f32` and a
+    if vector_row::<T, D>(n) {
+        // SAFETY: `vector_row`: AVX-512F is present, `T` is `f32` and a
         // `Vector<f32, 3>` is its three numbers (size checked), so the row is `4n`
         // record numbers, `n` masses and `3n` momentum numbers, all consecutive.
         unsafe {
@@ -73,12 +80,7 @@ pub fn split_components<T: Real, const D: usize, const N: usize>(
     let n = values.len();
     assert!(at + n <= N, "split_components: {n} nodes at {at} of {N}");
     #[cfg(target_arch = "x86_64")]
-    if D == 3
-        && n <= NODE_ROW_MAX
-        && std::any::TypeId::of::<T>() == std::any::TypeId::of::<f32>()
-        && std::mem::size_of::<Vector<T, D>>() == D * std::mem::size_of::<T>()
-        && std::is_x86_feature_detected!("avx512f")
-    {
+    if vector_row::<T, D>(n) {
         // SAFETY: as in `add_node_records`: `3n` consecutive `f32` in, and `n`
         // numbers out to each of the three rows, which hold `at + n` (asserted).
         unsafe {
