@@ -413,11 +413,7 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
             .x
             .par_chunks(PARTICLE_CHUNK)
             .zip(self.cells.par_chunks_mut(PARTICLE_CHUNK))
-            .for_each_erased(&|(xs, cells)| {
-                for (x, c) in xs.iter().zip(cells) {
-                    *c = Self::home_cell(x, inv_h, off);
-                }
-            });
+            .for_each_erased(&|(xs, cells)| Self::home_cells_of(xs, inv_h, off, cells));
     }
 
     /// [`Self::home_cell`] of each position of `xs` into `cells`, the same results,
@@ -442,8 +438,9 @@ impl<T: Real, const D: usize, K: Kernel, L: GridLayout> ExplicitStepper<T, D, K,
     }
 
     /// The home cell of a particle at `x` ([`Self::home_cells`]); `off` is
-    /// [`Self::home_offset`].
-    #[inline(always)]
+    /// [`Self::home_offset`]. The one-particle form that [`Self::home_cells_of`] is
+    /// tested against.
+    #[cfg(test)]
     fn home_cell(x: &Vector<T, D>, inv_h: T, off: T) -> [i32; D] {
         std::array::from_fn(|a| K::base_node(x[a] * inv_h - off))
     }
