@@ -431,13 +431,12 @@ fn sums_lanes<
             let row_offset: usize = (1..D).map(|a| j[a] * strides[a]).sum();
             // The row's node velocities, from the tile.
             let row_v = load_row::<T, D, AVX512, N>(tile, &first, row_offset as isize);
-            let row_old = if needs.old_velocity {
-                load_row::<T, D, AVX512, N>(tile_old, &first, row_offset as isize)
-            } else {
-                row_v
-            };
-            for (j0, (&v, v_old)) in row_v.iter().zip(&row_old).enumerate().take(n) {
-                if needs.old_velocity {
+            // FLIP's old velocities only where needed, in a loop of their own (the
+            // sums it feeds are apart): a copy of the row in their place otherwise
+            // was a `memcpy` call per row for the quadratic (576 bytes).
+            if needs.old_velocity {
+                let row_old = load_row::<T, D, AVX512, N>(tile_old, &first, row_offset as isize);
+                for (j0, (v, v_old)) in row_v.iter().zip(&row_old).enumerate() {
                     for c in 0..D {
                         for l in 0..LANES {
                             let wn = w[0][j0][l] * w_row[l];
@@ -445,8 +444,10 @@ fn sums_lanes<
                         }
                     }
                 }
-                add_scaled(&mut p[0][j0], &v, &w_row);
-                add_scaled(&mut rs, &v, &w[0][j0]);
+            }
+            for (j0, v) in row_v.iter().enumerate() {
+                add_scaled(&mut p[0][j0], v, &w_row);
+                add_scaled(&mut rs, v, &w[0][j0]);
             }
             for a in 1..D {
                 add_scaled(&mut p[a][j[a]], &rs, &x[a]);
