@@ -431,9 +431,10 @@ fn sums_lanes<
             let row_offset: usize = (1..D).map(|a| j[a] * strides[a]).sum();
             // The row's node velocities, from the tile.
             let row_v = load_row::<T, D, AVX512, N>(tile, &first, row_offset as isize);
-            // FLIP's old velocities only where needed, in a loop of their own (the
-            // sums it feeds are apart): a copy of the row in their place otherwise
-            // was a `memcpy` call per row for the quadratic (576 bytes).
+            // FLIP's old velocities only where needed, in a loop of their own: its
+            // sum shares nothing with the others, so each sum's additions keep their
+            // order (a copy of the row in their place was a `memcpy` call per row
+            // for the quadratic, 576 bytes).
             if needs.old_velocity {
                 let row_old = load_row::<T, D, AVX512, N>(tile_old, &first, row_offset as isize);
                 for (j0, (v, v_old)) in row_v.iter().zip(&row_old).enumerate() {
