@@ -6,7 +6,8 @@
 //! those lanes, stalls on store forwarding (the load waits for the narrow stores to
 //! reach the cache); so does the copy back, which the compiler turned into gathers
 //! from the stack. A full run of `f32` on AVX-512 is instead `W` vector loads and
-//! `W²` masked permutes in registers (and the reverse). Both directions only move
+//! `W²` masked permutes in registers (and the reverse); to lanes on AVX2, `2 W`
+//! gathers. Both directions only move
 //! values: the results are the same bits on every path.
 
 use crate::Real;
@@ -45,6 +46,19 @@ pub fn to_lanes<T: Real, const R: usize, const C: usize, const W: usize>(
         unsafe {
             let flat = std::slice::from_raw_parts(records.as_ptr() as *const f32, RECORD_LANES * W);
             let lanes = to_lanes_f32_avx512::<W>(flat);
+            return *(&lanes as *const RecordLanes<f32, W> as *const RecordLanes<T, W>);
+        }
+    }
+    #[cfg(target_arch = "x86_64")]
+    if records.len() == RECORD_LANES
+        && std::any::TypeId::of::<T>() == std::any::TypeId::of::<f32>()
+        && std::mem::size_of::<SMatrix<T, R, C>>() == W * std::mem::size_of::<T>()
+        && std::is_x86_feature_detected!("avx2")
+    {
+        // SAFETY: AVX2 is present (just detected); the rest as above.
+        unsafe {
+            let flat = std::slice::from_raw_parts(records.as_ptr() as *const f32, RECORD_LANES * W);
+            let lanes = to_lanes_f32_avx2::<W>(flat);
             return *(&lanes as *const RecordLanes<f32, W> as *const RecordLanes<T, W>);
         }
     }
@@ -166,6 +180,33 @@ unsafe fn to_lanes_f32_avx512<const W: usize>(flat: &[f32]) -> RecordLanes<f32, 
     out
 }
 
+/// [`to_lanes`] of a full `f32` run with AVX2: number `e` of eight lanes at a time
+/// by one gather (AVX2 has no two-register permute; `W²` one-register permutes and
+/// blends per eight lanes cost more than the `W` gathers).
+#[cfg(target_arch = "x86_64")]
+#[inline]
+#[target_feature(enable = "avx2")]
+unsafe fn to_lanes_f32_avx2<const W: usize>(flat: &[f32]) -> RecordLanes<f32, W> {
+    use std::arch::x86_64::*;
+    debug_assert_eq!(flat.len(), RECORD_LANES * W);
+    let mut out = [[0f32; RECORD_LANES]; W];
+    let w = W as i32;
+    // SAFETY: `flat` holds `16 W` numbers; the gather for number `e` of lanes
+    // `8 h … 8 h + 7` reads flat numbers `W (8 h + l) + e < 16 W`; each store writes
+    // eight numbers of an output row of 16.
+    unsafe {
+        let stride = _mm256_setr_epi32(0, w, 2 * w, 3 * w, 4 * w, 5 * w, 6 * w, 7 * w);
+        for (e, row) in out.iter_mut().enumerate() {
+            for half in 0..RECORD_LANES / 8 {
+                let first = flat.as_ptr().add(8 * W * half + e);
+                let v = _mm256_i32gather_ps::<4>(first, stride);
+                _mm256_storeu_ps(row.as_mut_ptr().add(8 * half), v);
+            }
+        }
+    }
+    out
+}
+
 /// [`from_lanes`] of a full `f32` run: register `s` of the run, gathered from the
 /// `W` lane rows by one merge-masked permute per row
 /// ([`PermuteTables::FROM_LANES`]).
@@ -201,7 +242,8 @@ mod tests {
 
     /// Both directions against the definition, bit for bit, for every run length,
     /// `f32` and `f64`, 3-vectors and 3×3 and 2×2 matrices (full `f32` runs take the
-    /// AVX-512 permutes where the CPU has them).
+    /// AVX-512 permutes where the CPU has them, else the AVX2 gathers where it has
+    /// those).
     fn round_trip<T: Real, const R: usize, const C: usize, const W: usize>() {
         let records: Vec<SMatrix<T, R, C>> = (0..RECORD_LANES)
             .map(|l| {

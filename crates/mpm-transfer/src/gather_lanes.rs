@@ -243,8 +243,14 @@ fn dispatch_sums<T: Real, const D: usize, K: Kernel, G: GridLayout>(
             return unsafe { sums_avx2::<T, D, K, G>(args, out) };
         }
     }
-    with_nodes_per_axis!(K, N => sums_lanes::<T, D, K, G, false, N>(args, out));
+    with_nodes_per_axis!(K, N => sums_lanes::<T, D, K, G, PORTABLE, N>(args, out));
 }
+
+/// Instruction sets that [`load_row`] has explicit loads for (the `ISA` argument of
+/// [`sums_lanes`]: the caller is compiled for it).
+const PORTABLE: u32 = 0;
+const AVX2: u32 = 1;
+const AVX512: u32 = 2;
 
 /// What [`sums_lanes`] reads: the run's stencils, the node velocities and old
 /// velocities of the tile (per grid), its origin and extent, what to gather and the
@@ -265,7 +271,7 @@ fn sums_avx512<T: Real, const D: usize, K: Kernel, G: GridLayout>(
     args: SumArgs<'_, T, D>,
     out: &mut GatheredLanes<T, D>,
 ) {
-    with_nodes_per_axis!(K, N => sums_lanes::<T, D, K, G, true, N>(args, out));
+    with_nodes_per_axis!(K, N => sums_lanes::<T, D, K, G, AVX512, N>(args, out));
 }
 
 /// [`sums_lanes`] compiled for AVX2.
@@ -275,7 +281,7 @@ fn sums_avx2<T: Real, const D: usize, K: Kernel, G: GridLayout>(
     args: SumArgs<'_, T, D>,
     out: &mut GatheredLanes<T, D>,
 ) {
-    with_nodes_per_axis!(K, N => sums_lanes::<T, D, K, G, false, N>(args, out));
+    with_nodes_per_axis!(K, N => sums_lanes::<T, D, K, G, AVX2, N>(args, out));
 }
 
 /// `a[c][l] += b[c][l] * s[l]` for every component `c` and lane `l`.
@@ -309,12 +315,12 @@ fn load_lanes<T: Real, const D: usize>(
 }
 
 /// The velocities of the `N` nodes of a stencil row, `first[l] + offset + j₀` for
-/// `j₀ < N`, per lane: with `AVX512` (the caller is compiled for it) and `f32` on a
-/// CPU with AVX-512F, two neighbouring nodes at a time,
-/// one 64-bit gather per eight lanes and component (half the gathered elements of
-/// [`load_lanes`]), split into the two nodes by a permute.
+/// `j₀ < N`, per lane: with `ISA` [`AVX512`] or [`AVX2`] (the caller is compiled for
+/// it) and `f32` on a CPU that has it, two neighbouring nodes at a time, in 64-bit
+/// gathers (half the gathered elements of [`load_lanes`]) split into the two nodes
+/// by permutes; otherwise a node at a time.
 #[inline(always)]
-fn load_row<T: Real, const D: usize, const AVX512: bool, const N: usize>(
+fn load_row<T: Real, const D: usize, const ISA: u32, const N: usize>(
     tile: &[[T; TILE_NODES]; D],
     first: &[isize; LANES],
     offset: isize,
@@ -323,7 +329,7 @@ fn load_row<T: Real, const D: usize, const AVX512: bool, const N: usize>(
     let mut v = [[[T::zero(); LANES]; D]; N];
     let mut j0 = 0;
     #[cfg(target_arch = "x86_64")]
-    if AVX512
+    if ISA == AVX512
         && std::any::TypeId::of::<T>() == std::any::TypeId::of::<f32>()
         && std::is_x86_feature_detected!("avx512f")
     {
@@ -337,6 +343,28 @@ fn load_row<T: Real, const D: usize, const AVX512: bool, const N: usize>(
                 v[j0 + 1] = *(&b as *const [Lanes<f32>; D] as *const [Lanes<T>; D]);
             }
             j0 += 2;
+        }
+    }
+    #[cfg(target_arch = "x86_64")]
+    if ISA == AVX2
+        && std::any::TypeId::of::<T>() == std::any::TypeId::of::<f32>()
+        && std::is_x86_feature_detected!("avx2")
+    {
+        // SAFETY: the CPU has AVX2 (just detected); `T` is `f32`, so the casts view
+        // the same values.
+        unsafe {
+            let tile = &*(tile as *const [[T; TILE_NODES]; D] as *const [[f32; TILE_NODES]; D]);
+            while j0 + 1 < n {
+                let [a, b] = load_pair_f32_avx2(tile, first, offset + j0 as isize);
+                v[j0] = *(&a as *const [Lanes<f32>; D] as *const [Lanes<T>; D]);
+                v[j0 + 1] = *(&b as *const [Lanes<f32>; D] as *const [Lanes<T>; D]);
+                j0 += 2;
+            }
+            if j0 < n {
+                let a = load_f32_avx2(tile, first, offset + j0 as isize);
+                v[j0] = *(&a as *const [Lanes<f32>; D] as *const [Lanes<T>; D]);
+                j0 += 1;
+            }
         }
     }
     while j0 < n {
@@ -382,18 +410,85 @@ unsafe fn load_pair_f32_avx512<const D: usize>(
     out
 }
 
+/// [`load_lanes`] of the nodes at `offset` and `offset + 1` with AVX2: per
+/// component, each quarter of the lanes gathers four 64-bit pairs, and a shuffle and
+/// a permute per eight lanes split them into the two nodes (the compiler's own
+/// loads were scalar, written to the stack and read back as vectors). Indices are
+/// clamped as in [`load_pair_f32_avx512`].
+#[cfg(target_arch = "x86_64")]
+#[inline]
+#[target_feature(enable = "avx2")]
+unsafe fn load_pair_f32_avx2<const D: usize>(
+    tile: &[[f32; TILE_NODES]; D],
+    first: &[isize; LANES],
+    offset: isize,
+) -> [[Lanes<f32>; D]; 2] {
+    use std::arch::x86_64::*;
+    let mut index = [0i32; LANES];
+    for l in 0..LANES {
+        index[l] = (first[l] + offset).clamp(0, TILE_NODES as isize - 2) as i32;
+    }
+    let mut out = [[[0f32; LANES]; D]; 2];
+    // SAFETY: every index and the one after it lie in each component's tile;
+    // unaligned loads and stores on arrays of the right length.
+    unsafe {
+        for c in 0..D {
+            let base = tile[c].as_ptr() as *const f64;
+            for half in 0..LANES / 8 {
+                let quarter = |q: usize| {
+                    let i = _mm_loadu_si128(index.as_ptr().add(8 * half + 4 * q) as *const __m128i);
+                    _mm256_castpd_ps(_mm256_i32gather_pd::<4>(base, i))
+                };
+                // a = [n0 n1 of lanes 0, 1 | lanes 2, 3], b the same for lanes 4–7.
+                let (a, b) = (quarter(0), quarter(1));
+                // Per 128-bit half: lanes 0 1 4 5 | 2 3 6 7, then put in order.
+                let even = _mm256_shuffle_ps::<0b10_00_10_00>(a, b);
+                let odd = _mm256_shuffle_ps::<0b11_01_11_01>(a, b);
+                let order = |v: __m256| {
+                    _mm256_castpd_ps(_mm256_permute4x64_pd::<0b11_01_10_00>(_mm256_castps_pd(v)))
+                };
+                _mm256_storeu_ps(out[0][c].as_mut_ptr().add(8 * half), order(even));
+                _mm256_storeu_ps(out[1][c].as_mut_ptr().add(8 * half), order(odd));
+            }
+        }
+    }
+    out
+}
+
+/// [`load_lanes`] with AVX2: one 8-lane gather per component and half of the lanes.
+#[cfg(target_arch = "x86_64")]
+#[inline]
+#[target_feature(enable = "avx2")]
+unsafe fn load_f32_avx2<const D: usize>(
+    tile: &[[f32; TILE_NODES]; D],
+    first: &[isize; LANES],
+    offset: isize,
+) -> [Lanes<f32>; D] {
+    use std::arch::x86_64::*;
+    let mut index = [0i32; LANES];
+    for l in 0..LANES {
+        index[l] = (first[l] + offset).clamp(0, TILE_NODES as isize - 1) as i32;
+    }
+    let mut out = [[0f32; LANES]; D];
+    // SAFETY: every index lies in each component's tile; unaligned loads and stores
+    // on arrays of the right length.
+    unsafe {
+        for c in 0..D {
+            for half in 0..LANES / 8 {
+                let i = _mm256_loadu_si256(index.as_ptr().add(8 * half) as *const __m256i);
+                let v = _mm256_i32gather_ps::<4>(tile[c].as_ptr(), i);
+                _mm256_storeu_ps(out[c].as_mut_ptr().add(8 * half), v);
+            }
+        }
+    }
+    out
+}
+
 /// The portable lane code behind [`LaneGather::gather`]. Lanes past the run hold
 /// copies of its last particle, so their sums are that particle's (the lane update
 /// checks them with it; nothing is written from them).
 #[inline(always)]
-fn sums_lanes<
-    T: Real,
-    const D: usize,
-    K: Kernel,
-    G: GridLayout,
-    const AVX512: bool,
-    const N: usize,
->(
+fn sums_lanes<T: Real, const D: usize, K: Kernel, G: GridLayout, const ISA: u32, const N: usize>(
     (stencils, (tiles, tiles_old), origin, extent, needs, h): SumArgs<'_, T, D>,
     out: &mut GatheredLanes<T, D>,
 ) {
@@ -430,13 +525,13 @@ fn sums_lanes<
             let mut rs = [[zero; LANES]; D];
             let row_offset: usize = (1..D).map(|a| j[a] * strides[a]).sum();
             // The row's node velocities, from the tile.
-            let row_v = load_row::<T, D, AVX512, N>(tile, &first, row_offset as isize);
+            let row_v = load_row::<T, D, ISA, N>(tile, &first, row_offset as isize);
             // FLIP's old velocities only where needed, in a loop of their own: its
             // sum shares nothing with the others, so each sum's additions keep their
             // order (a copy of the row in their place was a `memcpy` call per row
             // for the quadratic, 576 bytes).
             if needs.old_velocity {
-                let row_old = load_row::<T, D, AVX512, N>(tile_old, &first, row_offset as isize);
+                let row_old = load_row::<T, D, ISA, N>(tile_old, &first, row_offset as isize);
                 for (j0, (v, v_old)) in row_v.iter().zip(&row_old).enumerate() {
                     for c in 0..D {
                         for l in 0..LANES {
@@ -574,22 +669,24 @@ mod tests {
         first: &[isize; LANES],
         offset: isize,
     ) {
-        let paired = load_row::<f32, 3, true, N>(tile, first, offset);
-        let single = load_row::<f32, 3, false, N>(tile, first, offset);
+        let avx512 = load_row::<f32, 3, AVX512, N>(tile, first, offset);
+        let avx2 = load_row::<f32, 3, AVX2, N>(tile, first, offset);
+        let portable = load_row::<f32, 3, PORTABLE, N>(tile, first, offset);
         for j in 0..N {
             let expected = load_lanes(tile, first, offset + j as isize);
             for c in 0..3 {
                 for l in 0..LANES {
-                    assert_eq!(paired[j][c][l].to_bits(), expected[c][l].to_bits());
-                    assert_eq!(single[j][c][l].to_bits(), expected[c][l].to_bits());
+                    for row in [&avx512, &avx2, &portable] {
+                        assert_eq!(row[j][c][l].to_bits(), expected[c][l].to_bits());
+                    }
                 }
             }
         }
     }
 
-    /// The paired AVX-512 loads give [`load_lanes`]' values bit for bit, for rows
-    /// of 2 to 4 nodes anywhere in the tile (where the CPU lacks AVX-512F, both
-    /// sides run the portable loads).
+    /// The AVX-512 and AVX2 loads give [`load_lanes`]' values bit for bit, for rows
+    /// of 2 to 4 nodes anywhere in the tile (where the CPU lacks the instruction
+    /// set, that side runs the portable loads).
     #[test]
     fn paired_row_loads_match_single_loads() {
         let mut tile = [[0f32; TILE_NODES]; 3];
