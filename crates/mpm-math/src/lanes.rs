@@ -283,6 +283,31 @@ mod tests {
         }
     }
 
+    /// The AVX2 gathers against the definition, bit for bit, wherever the CPU has
+    /// AVX2 (an AVX-512 CPU takes the permutes in [`to_lanes`]).
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn avx2_gathers_put_runs_in_lanes() {
+        fn check<const W: usize>() {
+            let flat: Vec<f32> = (0..RECORD_LANES * W)
+                .map(|i| i as f32 * 0.75 - 11.0)
+                .collect();
+            // SAFETY: AVX2 is present (checked below); `flat` holds `16 W` numbers.
+            let lanes = unsafe { to_lanes_f32_avx2::<W>(&flat) };
+            for (e, row) in lanes.iter().enumerate() {
+                for (l, x) in row.iter().enumerate() {
+                    assert_eq!(x.to_bits(), flat[W * l + e].to_bits(), "W {W} e {e} l {l}");
+                }
+            }
+        }
+        if std::is_x86_feature_detected!("avx2") {
+            check::<2>();
+            check::<3>();
+            check::<4>();
+            check::<9>();
+        }
+    }
+
     #[test]
     fn runs_go_to_lanes_and_back_unchanged() {
         round_trip::<f32, 3, 1, 3>();
