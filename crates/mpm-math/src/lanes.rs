@@ -7,8 +7,8 @@
 //! reach the cache); so does the copy back, which the compiler turned into gathers
 //! from the stack. A full run of `f32` on AVX-512 is instead `W` vector loads and
 //! `W²` masked permutes in registers (and the reverse); to lanes on AVX2, `2 W`
-//! gathers. Both directions only move
-//! values: the results are the same bits on every path.
+//! gathers. Both directions only move values: the results are the same bits on
+//! every path.
 
 use crate::Real;
 use nalgebra::SMatrix;
@@ -181,8 +181,8 @@ unsafe fn to_lanes_f32_avx512<const W: usize>(flat: &[f32]) -> RecordLanes<f32, 
 }
 
 /// [`to_lanes`] of a full `f32` run with AVX2: number `e` of eight lanes at a time
-/// by one gather (AVX2 has no two-register permute; `W²` one-register permutes and
-/// blends per eight lanes cost more than the `W` gathers).
+/// by one gather (AVX2 has no merge-masked two-register permute, on which the
+/// AVX-512 form rests).
 #[cfg(target_arch = "x86_64")]
 #[inline]
 #[target_feature(enable = "avx2")]

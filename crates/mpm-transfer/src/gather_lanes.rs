@@ -246,10 +246,13 @@ fn dispatch_sums<T: Real, const D: usize, K: Kernel, G: GridLayout>(
     with_nodes_per_axis!(K, N => sums_lanes::<T, D, K, G, PORTABLE, N>(args, out));
 }
 
-/// Instruction sets that [`load_row`] has explicit loads for (the `ISA` argument of
-/// [`sums_lanes`]: the caller is compiled for it).
+// The instruction sets that `load_row` has explicit loads for: the `ISA` argument
+// of `sums_lanes`, whose caller is compiled for it.
+/// No explicit vector loads.
 const PORTABLE: u32 = 0;
+/// AVX2's 64-bit and 32-bit gathers.
 const AVX2: u32 = 1;
+/// AVX-512F's 64-bit gathers.
 const AVX512: u32 = 2;
 
 /// What [`sums_lanes`] reads: the run's stencils, the node velocities and old
