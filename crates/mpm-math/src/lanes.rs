@@ -37,29 +37,24 @@ pub fn to_lanes<T: Real, const R: usize, const C: usize, const W: usize>(
     if records.len() == RECORD_LANES
         && std::any::TypeId::of::<T>() == std::any::TypeId::of::<f32>()
         && std::mem::size_of::<SMatrix<T, R, C>>() == W * std::mem::size_of::<T>()
-        && std::is_x86_feature_detected!("avx512f")
     {
-        // SAFETY: AVX-512F is present (just detected). `T` is `f32`, and an
-        // `SMatrix<f32, R, C>` is its `R·C = W` numbers column-major (nalgebra's
-        // `Matrix` is `repr(C)` over a `repr(transparent)` `[[T; R]; C]`; the size checked), so the run
-        // is `16 W` consecutive `f32`, and the result is the type asked for.
+        // SAFETY: `T` is `f32`, and an `SMatrix<f32, R, C>` is its `R·C = W` numbers
+        // column-major (nalgebra's `Matrix` is `repr(C)` over a `repr(transparent)`
+        // `[[T; R]; C]`; the size checked), so the run is `16 W` consecutive `f32`,
+        // and the result is the type asked for; each path runs only where the CPU
+        // has its instruction set (just detected).
         unsafe {
             let flat = std::slice::from_raw_parts(records.as_ptr() as *const f32, RECORD_LANES * W);
-            let lanes = to_lanes_f32_avx512::<W>(flat);
-            return *(&lanes as *const RecordLanes<f32, W> as *const RecordLanes<T, W>);
-        }
-    }
-    #[cfg(target_arch = "x86_64")]
-    if records.len() == RECORD_LANES
-        && std::any::TypeId::of::<T>() == std::any::TypeId::of::<f32>()
-        && std::mem::size_of::<SMatrix<T, R, C>>() == W * std::mem::size_of::<T>()
-        && std::is_x86_feature_detected!("avx2")
-    {
-        // SAFETY: AVX2 is present (just detected); the rest as above.
-        unsafe {
-            let flat = std::slice::from_raw_parts(records.as_ptr() as *const f32, RECORD_LANES * W);
-            let lanes = to_lanes_f32_avx2::<W>(flat);
-            return *(&lanes as *const RecordLanes<f32, W> as *const RecordLanes<T, W>);
+            let lanes = if std::is_x86_feature_detected!("avx512f") {
+                Some(to_lanes_f32_avx512::<W>(flat))
+            } else if std::is_x86_feature_detected!("avx2") {
+                Some(to_lanes_f32_avx2::<W>(flat))
+            } else {
+                None
+            };
+            if let Some(lanes) = lanes {
+                return *(&lanes as *const RecordLanes<f32, W> as *const RecordLanes<T, W>);
+            }
         }
     }
     std::array::from_fn(|e| std::array::from_fn(|l| records.get(l).unwrap_or(pad).as_slice()[e]))

@@ -377,6 +377,19 @@ fn load_row<T: Real, const D: usize, const ISA: u32, const N: usize>(
     v
 }
 
+/// Each lane's tile index `first[l] + offset` for a load of `width` consecutive
+/// nodes, clamped so that all of them lie in the tile (as in [`load_lanes`], only a
+/// non-finite position reaches the clamp).
+#[inline(always)]
+fn tile_indices(first: &[isize; LANES], offset: isize, width: usize) -> [i32; LANES] {
+    let last = (TILE_NODES - width) as isize;
+    let mut index = [0i32; LANES];
+    for l in 0..LANES {
+        index[l] = (first[l] + offset).clamp(0, last) as i32;
+    }
+    index
+}
+
 /// [`load_lanes`] of the nodes at `offset` and `offset + 1` with AVX-512F: per
 /// component, lanes 0–7 and 8–15 each gather 64-bit pairs, which two permutes
 /// split into the two nodes. Indices are clamped so that both nodes lie in the
@@ -390,10 +403,7 @@ unsafe fn load_pair_f32_avx512<const D: usize>(
     offset: isize,
 ) -> [[Lanes<f32>; D]; 2] {
     use std::arch::x86_64::*;
-    let mut index = [0i32; LANES];
-    for l in 0..LANES {
-        index[l] = (first[l] + offset).clamp(0, TILE_NODES as isize - 2) as i32;
-    }
+    let index = tile_indices(first, offset, 2);
     let mut out = [[[0f32; LANES]; D]; 2];
     // SAFETY: every index and the one after it lie in each component's tile;
     // unaligned loads and stores on arrays of the right length.
@@ -427,10 +437,7 @@ unsafe fn load_pair_f32_avx2<const D: usize>(
     offset: isize,
 ) -> [[Lanes<f32>; D]; 2] {
     use std::arch::x86_64::*;
-    let mut index = [0i32; LANES];
-    for l in 0..LANES {
-        index[l] = (first[l] + offset).clamp(0, TILE_NODES as isize - 2) as i32;
-    }
+    let index = tile_indices(first, offset, 2);
     let mut out = [[[0f32; LANES]; D]; 2];
     // SAFETY: every index and the one after it lie in each component's tile;
     // unaligned loads and stores on arrays of the right length.
@@ -468,10 +475,7 @@ unsafe fn load_f32_avx2<const D: usize>(
     offset: isize,
 ) -> [Lanes<f32>; D] {
     use std::arch::x86_64::*;
-    let mut index = [0i32; LANES];
-    for l in 0..LANES {
-        index[l] = (first[l] + offset).clamp(0, TILE_NODES as isize - 1) as i32;
-    }
+    let index = tile_indices(first, offset, 1);
     let mut out = [[0f32; LANES]; D];
     // SAFETY: every index lies in each component's tile; unaligned loads and stores
     // on arrays of the right length.
