@@ -28,6 +28,7 @@ use mpm_math::{
     from_lanes, split_components, zero_matrix, Matrix, Real, RecordLanes, Vector, RECORD_LANES,
 };
 use std::marker::PhantomData;
+use std::mem::MaybeUninit;
 
 const LANES: usize = STENCIL_LANES;
 
@@ -520,7 +521,8 @@ fn sums_lanes<T: Real, const D: usize, K: Kernel, G: GridLayout, const ISA: u32,
                 first[l] += (base[l] - origin[a]) as isize * strides[a] as isize;
             }
         }
-        let f = AxisFactorLanes::<T, D, N>::new::<K>(stencils, k, h);
+        let mut factors = MaybeUninit::uninit();
+        let f = AxisFactorLanes::<T, D, N>::new_in::<K>(&mut factors, stencils, k, h);
         let (w, g, r) = (&f.w, &f.g, &f.r);
         // `P₀` and the row sums `R`, row by row, each row's `R` then added to the
         // `Pₐ[jₐ] = Σ_rows Xₐ R` for `a ≥ 1` (in row order, as a second pass over

@@ -16,6 +16,7 @@ use crate::separable::{stencil_rows, with_nodes_per_axis, AxisFactorLanes, Lanes
 use mpm_grid::{GridLayout, LocalBuffer};
 use mpm_kernels::{Kernel, Stencil, StencilLanes, STENCIL_LANES};
 use mpm_math::{Matrix, Real, Vector};
+use std::mem::MaybeUninit;
 
 const LANES: usize = STENCIL_LANES;
 
@@ -178,16 +179,21 @@ impl<T: Real, const D: usize> ScatterLanes<T, D> {
         debug_assert!(rows <= R, "{rows} rows, room for {R}");
         let zero = T::zero();
         let strides = buf.strides();
-        // Every node's contribution per lane (`node_mass[row][j₀][l]`, …): written in
-        // full before they are read in 3-D, so no zeroing is left in the code
-        // (`node_impulse` is touched only when `SEPARATE`, else dropped as unused).
-        let mut node_mass = [[[zero; LANES]; N]; R];
-        let mut node_momentum = [[[[zero; LANES]; D]; N]; R];
-        let mut node_impulse = [[[[zero; LANES]; D]; N]; R];
+        // Every node's contribution per lane (`node_mass[row][j₀][l]`, …), each
+        // written before it is read (rows past `rows`, in 2-D, never are;
+        // `node_impulse` only when `SEPARATE`). Uninitialised: zeroed arrays were
+        // `memset` in full per run, though every entry read is overwritten (13.8 KB
+        // per run of the quadratic, unused `node_impulse` included).
+        let mut node_mass = [[[MaybeUninit::<T>::uninit(); LANES]; N]; R];
+        let mut node_momentum = [[[[MaybeUninit::<T>::uninit(); LANES]; D]; N]; R];
+        let mut node_impulse = [[[[MaybeUninit::<T>::uninit(); LANES]; D]; N]; R];
         for k in 0..G::GRIDS {
-            let f = AxisFactorLanes::<T, D, N>::new::<K>(stencils, k, h);
-            let momentum = tables(&self.momentum, &f);
-            let impulse = SEPARATE.then(|| tables(&self.impulse, &f));
+            let mut factors = MaybeUninit::uninit();
+            let f = AxisFactorLanes::<T, D, N>::new_in::<K>(&mut factors, stencils, k, h);
+            let (mut momentum_table, mut impulse_table) =
+                (MaybeUninit::uninit(), MaybeUninit::uninit());
+            let momentum = tables(&self.momentum, f, &mut momentum_table);
+            let impulse = SEPARATE.then(|| tables(&self.impulse, f, &mut impulse_table));
             for row in 0..rows {
                 let j = Stencil::<T, D>::local_of::<K>(row * n);
                 let (x, w_row) = f.row(&j);
@@ -195,12 +201,12 @@ impl<T: Real, const D: usize> ScatterLanes<T, D> {
                 for l in 0..LANES {
                     m_row[l] = w_row[l] * self.mass[l];
                 }
-                let shared = row_shared(&momentum, &x, &j);
+                let shared = row_shared(momentum, &x, &j);
                 let shared_impulse = impulse.as_ref().map(|t| row_shared(t, &x, &j));
                 for j0 in 0..n {
                     let w0 = &f.w[0][j0];
                     for l in 0..LANES {
-                        node_mass[row][j0][l] = w0[l] * m_row[l];
+                        node_mass[row][j0][l].write(w0[l] * m_row[l]);
                     }
                     node_term(
                         &mut node_momentum[row][j0],
@@ -230,10 +236,16 @@ impl<T: Real, const D: usize> ScatterLanes<T, D> {
                 for row in 0..rows {
                     for j0 in 0..n {
                         let idx = first + offsets[row][j0];
-                        let m = node_mass[row][j0][l];
-                        let p = Vector::<T, D>::from_fn(|c, _| node_momentum[row][j0][c][l]);
+                        // SAFETY: the loop above wrote every node of rows `..rows`
+                        // in every lane, and `node_impulse` too when `SEPARATE`.
+                        let m = unsafe { node_mass[row][j0][l].assume_init() };
+                        let p = Vector::<T, D>::from_fn(|c, _| unsafe {
+                            node_momentum[row][j0][c][l].assume_init()
+                        });
                         if SEPARATE {
-                            let i = Vector::<T, D>::from_fn(|c, _| node_impulse[row][j0][c][l]);
+                            let i = Vector::<T, D>::from_fn(|c, _| unsafe {
+                                node_impulse[row][j0][c][l].assume_init()
+                            });
                             buf.add_at(idx, m, &p, &i);
                         } else {
                             buf.add_folded_at(idx, m, &p);
@@ -248,11 +260,16 @@ impl<T: Real, const D: usize> ScatterLanes<T, D> {
 /// Per-axis tables `Aₐ[j][c]` of a term (module docs):
 /// `Cₐ (wₐ[j] rₐ[j]) + Sₐ gₐ[j]`, plus `c₀ w₀[j]` on axis 0 (`Cₐ`, `Sₐ` the columns).
 #[inline(always)]
-fn tables<T: Real, const D: usize, const N: usize>(
+fn tables<'a, T: Real, const D: usize, const N: usize>(
     term: &Term<T, D>,
     f: &AxisFactorLanes<T, D, N>,
-) -> [[[Lanes<T>; D]; N]; D] {
-    let mut t = [[[[T::zero(); LANES]; D]; N]; D];
+    out: &'a mut MaybeUninit<Table<T, D, N>>,
+) -> &'a Table<T, D, N> {
+    // Written in place, every entry, with no zeroing first (as the node arrays of
+    // `scatter_lanes`; a returned table was zeroed and copied).
+    // SAFETY: an array of `MaybeUninit<T>` has the layout of the array of `T`, and
+    // any bits are valid for it.
+    let t = unsafe { &mut *(out.as_mut_ptr() as *mut [[[[MaybeUninit<T>; LANES]; D]; N]; D]) };
     for a in 0..D {
         for j in 0..N {
             for c in 0..D {
@@ -263,13 +280,17 @@ fn tables<T: Real, const D: usize, const N: usize>(
                     if a == 0 {
                         v += term.c0[c][l] * wa;
                     }
-                    t[a][j][c][l] = v;
+                    t[a][j][c][l].write(v);
                 }
             }
         }
     }
-    t
+    // SAFETY: the loops wrote every entry.
+    unsafe { out.assume_init_ref() }
 }
+
+/// Per-axis tables `Aₐ[j][c]` per lane: `[a][j][c][l]`.
+type Table<T, const D: usize, const N: usize> = [[[Lanes<T>; D]; N]; D];
 
 /// The row's shared part `U = Σ_{a≥1} Xₐ Aₐ[jₐ]`.
 #[inline(always)]
@@ -289,10 +310,10 @@ fn row_shared<T: Real, const D: usize, const N: usize>(
     u
 }
 
-/// A node's term `A₀[j₀] W + U w₀[j₀]`.
+/// A node's term `A₀[j₀] W + U w₀[j₀]`, into `out` (every entry written).
 #[inline(always)]
 fn node_term<T: Real, const D: usize>(
-    out: &mut [Lanes<T>; D],
+    out: &mut [[MaybeUninit<T>; LANES]; D],
     a0: &[Lanes<T>; D],
     w_row: &Lanes<T>,
     shared: &[Lanes<T>; D],
@@ -300,7 +321,7 @@ fn node_term<T: Real, const D: usize>(
 ) {
     for c in 0..D {
         for l in 0..LANES {
-            out[c][l] = a0[c][l] * w_row[l] + shared[c][l] * w0[l];
+            out[c][l].write(a0[c][l] * w_row[l] + shared[c][l] * w0[l]);
         }
     }
 }

@@ -21,6 +21,11 @@
 
 use mpm_kernels::{Kernel, Stencil, StencilLanes, MAX_NODES_PER_AXIS, STENCIL_LANES};
 use mpm_math::Real;
+use std::mem::MaybeUninit;
+use std::ptr::addr_of_mut;
+
+/// A field of [`AxisFactorLanes`] before it is written.
+type UninitTable<T, const D: usize, const N: usize> = [[[MaybeUninit<T>; STENCIL_LANES]; N]; D];
 
 /// Per-axis factors of one stencil: weights `w`, physical derivatives `g = N'/h` and
 /// offsets `r = (j − frac)·h`.
@@ -127,11 +132,11 @@ pub(crate) use with_nodes_per_axis;
 /// [`AxisFactors`] of every lane of a [`StencilLanes`] on one grid, lane-major:
 /// `w[a][j][l]`, `g[a][j][l]`, `r[a][j][l]`, each lane's as [`AxisFactors::new`]
 /// computes them (same operations, same bits), for a kernel of `N` nodes per axis.
-/// Sized to the kernel (as are P2G's per-axis tables and G2P's slice sums), so that
-/// the compiler sees every entry written and drops the zeroing: tables of
+/// Sized to the kernel (as are P2G's per-axis tables and G2P's slice sums): tables of
 /// [`MAX_NODES_PER_AXIS`] were zeroed by `memset` calls and filled only in part
 /// (dam S compact, 1 thread: P2G 19.6 → 17.0 ms, G2P 17.9 → 16.6; filling them with
-/// `std::array::from_fn` instead was slower than either).
+/// `std::array::from_fn` instead was slower than either). Written in place
+/// ([`Self::new_in`]): the compiler kept zeroing even the tables sized to the kernel.
 pub(crate) struct AxisFactorLanes<T, const D: usize, const N: usize> {
     pub w: [[Lanes<T>; N]; D],
     pub g: [[Lanes<T>; N]; D],
@@ -140,26 +145,43 @@ pub(crate) struct AxisFactorLanes<T, const D: usize, const N: usize> {
 
 impl<T: Real, const D: usize, const N: usize> AxisFactorLanes<T, D, N> {
     /// The factors on grid `k` of `stencils` (kernel `K` of `N` nodes per axis,
-    /// spacing `h`).
+    /// spacing `h`), written into `out`.
     #[inline(always)]
-    pub fn new<K: Kernel>(stencils: &StencilLanes<T, D>, k: usize, h: T) -> Self {
+    pub fn new_in<'a, K: Kernel>(
+        out: &'a mut MaybeUninit<Self>,
+        stencils: &StencilLanes<T, D>,
+        k: usize,
+        h: T,
+    ) -> &'a Self {
         debug_assert_eq!(K::NODES_PER_AXIS, N, "tables sized for another kernel");
         // `Stencil::inv_h` is this same `1/h`.
         let inv_h = T::one() / h;
-        let zero = [[[T::zero(); STENCIL_LANES]; N]; D];
-        let (mut w, mut g, mut r) = (zero, zero, zero);
+        // Written in place, every entry, with no zeroing first: zeroed tables were
+        // still `memset` (three of 576 bytes per grid and run for the quadratic), and
+        // a returned value copied.
+        let p = out.as_mut_ptr();
+        // SAFETY: the fields of a value being written in place, each an array of
+        // `T` seen as the array of `MaybeUninit<T>` of the same layout.
+        let (w, g, r) = unsafe {
+            (
+                &mut *(addr_of_mut!((*p).w) as *mut UninitTable<T, D, N>),
+                &mut *(addr_of_mut!((*p).g) as *mut UninitTable<T, D, N>),
+                &mut *(addr_of_mut!((*p).r) as *mut UninitTable<T, D, N>),
+            )
+        };
         for a in 0..D {
             let weights = stencils.lane_weights(k, a);
             let frac = stencils.lane_frac(k, a);
             for j in 0..N {
                 for l in 0..STENCIL_LANES {
-                    w[a][j][l] = weights.w[j][l];
-                    g[a][j][l] = weights.dw[j][l] * inv_h;
-                    r[a][j][l] = (T::lit(j as f64) - frac[l]) * h;
+                    w[a][j][l].write(weights.w[j][l]);
+                    g[a][j][l].write(weights.dw[j][l] * inv_h);
+                    r[a][j][l].write((T::lit(j as f64) - frac[l]) * h);
                 }
             }
         }
-        AxisFactorLanes { w, g, r }
+        // SAFETY: the loops wrote every entry of the three fields, all there are.
+        unsafe { out.assume_init_ref() }
     }
 
     /// The products over a stencil row (the nodes sharing `j₁ … j_{D−1}`, `j₀`
