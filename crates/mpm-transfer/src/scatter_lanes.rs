@@ -257,6 +257,9 @@ impl<T: Real, const D: usize> ScatterLanes<T, D> {
     }
 }
 
+/// Per-axis tables `Aₐ[j][c]` per lane: `[a][j][c][l]`.
+type Table<T, const D: usize, const N: usize> = [[[Lanes<T>; D]; N]; D];
+
 /// Per-axis tables `Aₐ[j][c]` of a term (module docs):
 /// `Cₐ (wₐ[j] rₐ[j]) + Sₐ gₐ[j]`, plus `c₀ w₀[j]` on axis 0 (`Cₐ`, `Sₐ` the columns).
 #[inline(always)]
@@ -289,13 +292,10 @@ fn tables<'a, T: Real, const D: usize, const N: usize>(
     unsafe { out.assume_init_ref() }
 }
 
-/// Per-axis tables `Aₐ[j][c]` per lane: `[a][j][c][l]`.
-type Table<T, const D: usize, const N: usize> = [[[Lanes<T>; D]; N]; D];
-
 /// The row's shared part `U = Σ_{a≥1} Xₐ Aₐ[jₐ]`.
 #[inline(always)]
 fn row_shared<T: Real, const D: usize, const N: usize>(
-    t: &[[[Lanes<T>; D]; N]; D],
+    t: &Table<T, D, N>,
     x: &[Lanes<T>; D],
     j: &[usize; D],
 ) -> [Lanes<T>; D] {
