@@ -10,6 +10,7 @@
 //! the branch folds away) to nalgebra's 2×2 and 3×3 types.
 
 mod erased_loops;
+mod lane_groups;
 mod lanes;
 mod node_rows;
 mod polar;
@@ -17,6 +18,7 @@ mod small;
 mod subnormals;
 
 pub use erased_loops::ErasedLoops;
+pub use lane_groups::LaneGroups;
 pub use lanes::{from_lanes, to_lanes, RecordLanes, RECORD_LANES};
 pub use nalgebra;
 pub use node_rows::{add_node_records, split_components, NODE_ROW_MAX};
