@@ -11,10 +11,10 @@
 //! loop's operations in its order (Rust never contracts into FMA). On one grid,
 //! consecutive particles whose stencils start at the same node (a cell's
 //! neighbours) are first summed in lanes ([`LaneGroups`]) and added once, which
-//! about halves the quadratic kernel's adds in the benchmark scenes' order; that changes the
-//! order of the sums (round-off), the same on every target and thread count.
-//! `tests/optimised_matches_reference.rs` checks P2G against the node-by-node
-//! reference.
+//! about halves the quadratic kernel's adds in the benchmark scenes' order; that
+//! changes the order of the sums (round-off), the same on every target and thread
+//! count. `tests/optimised_matches_reference.rs` checks P2G against the
+//! node-by-node reference.
 
 use crate::separable::{stencil_rows, with_nodes_per_axis, AxisFactorLanes, Lanes};
 use mpm_grid::{GridLayout, LocalBuffer};
