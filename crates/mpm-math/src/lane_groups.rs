@@ -111,7 +111,6 @@ impl LaneGroups {
                 // SAFETY: the CPU has AVX2 (just detected).
                 return unsafe { sum_f32_avx2(steps, arrays) };
             }
-            return sum_portable(steps, arrays);
         }
         sum_portable(steps, arrays);
     }
@@ -189,11 +188,14 @@ unsafe fn sums_f32_avx2<const S: usize>(steps: &[u32], arrays: &mut [[f32; LANES
             // Lanes whose source lies in the high half (`l + 2^i ≥ 8`).
             from_high[i] = _mm256_castsi256_ps(_mm256_cmpgt_epi32(to, _mm256_set1_epi32(7)));
             from[i] = _mm256_and_si256(to, _mm256_set1_epi32(7));
-            let mask = |bits: u32| {
-                let b = _mm256_and_si256(_mm256_set1_epi32(bits as i32), bit);
-                _mm256_castsi256_ps(_mm256_cmpeq_epi32(b, bit))
-            };
-            reach[i] = (mask(steps[i] & 0xff), mask(steps[i] >> 8));
+            // Lanes `l` of each half whose bit `l` (`l + 8` for the high half) is set;
+            // a loop, not a closure, which would not inherit the target feature.
+            let mut halves = [_mm256_setzero_ps(); 2];
+            for (h, half) in halves.iter_mut().enumerate() {
+                let b = _mm256_and_si256(_mm256_set1_epi32((steps[i] >> (8 * h)) as i32), bit);
+                *half = _mm256_castsi256_ps(_mm256_cmpeq_epi32(b, bit));
+            }
+            reach[i] = (halves[0], halves[1]);
         }
         for v in arrays {
             let mut lo = _mm256_loadu_ps(v.as_ptr());
@@ -263,9 +265,10 @@ unsafe fn sums_f32_avx512<const S: usize>(steps: &[u32], arrays: &mut [[f32; LAN
 mod tests {
     use super::*;
 
-    /// Groups from a pattern of joins, then sums of lane values `2^l` (exact in
-    /// `f32` and `f64`): each group's first lane holds the sum of its lanes, the
-    /// arrays are all summed, and `next` walks the first lanes.
+    /// Groups from a pattern of joins, then sums of lane values `(k + 1) 2^l` (exact
+    /// in `f32` and `f64`): `firsts` lists one lane per group, the lanes up to the
+    /// next first lane are joined, and each first lane of every array holds the sum
+    /// of its group.
     fn sums_match<T: Real>() {
         // Joined pairs, a run of 5, a run of 9 across, singles, a short vector.
         let patterns: [(usize, &[usize]); 5] = [
