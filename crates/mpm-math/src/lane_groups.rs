@@ -55,6 +55,23 @@ impl LaneGroups {
         r
     }
 
+    /// The masks of the sum's steps, `reach(1)`, `reach(2)`, … while not empty (at
+    /// most four: 16 lanes), and how many there are.
+    #[inline(always)]
+    fn steps(&self) -> ([u32; 4], usize) {
+        let mut steps = [0u32; 4];
+        let mut count = 0;
+        while count < 4 {
+            let reach = self.reach(1 << count);
+            if reach == 0 {
+                break;
+            }
+            steps[count] = reach;
+            count += 1;
+        }
+        (steps, count)
+    }
+
     /// The first lane of every group, in order.
     #[inline(always)]
     pub fn firsts(&self) -> impl Iterator<Item = usize> {
@@ -83,16 +100,7 @@ impl LaneGroups {
         if self.joined == 0 {
             return;
         }
-        let mut steps = [0u32; 4];
-        let mut count = 0;
-        while count < 4 {
-            let reach = self.reach(1 << count);
-            if reach == 0 {
-                break;
-            }
-            steps[count] = reach;
-            count += 1;
-        }
+        let (steps, count) = self.steps();
         let steps = &steps[..count];
         #[cfg(target_arch = "x86_64")]
         if std::any::TypeId::of::<T>() == std::any::TypeId::of::<f32>() {
@@ -328,11 +336,7 @@ mod tests {
                 .map(|_| std::array::from_fn(|_| next() * 1e3))
                 .collect();
             let mut want = arrays.clone();
-            let mut steps = [0u32; 4];
-            let count = (0..4).take_while(|&i| groups.reach(1 << i) != 0).count();
-            for (i, s) in steps.iter_mut().enumerate().take(count) {
-                *s = groups.reach(1 << i);
-            }
+            let (steps, count) = groups.steps();
             sum_portable(&steps[..count], &mut want);
             let mut got = arrays.clone();
             groups.sum_into_first(&mut got);
